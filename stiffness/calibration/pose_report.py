@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from stiffness.calibration.certainty import how_sure_lines
 from stiffness.calibration.fit_verdict import fit_lines, verdict_line
-from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL
+from stiffness.calibration.identifiability import IDENTIFIABILITY_TOL, Identifiability
 from stiffness.calibration.outliers import describe_outliers
 from stiffness.calibration.parameter_section import parameter_lines
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
@@ -65,9 +65,33 @@ def _frame_lines(frame: dict, unit: str) -> list[str]:
 _DROPPED = {"no effect": "dropped", "undetermined": "held"}
 
 
+#: More parameters without effect than this are printed as one line naming their owners (a
+#: humanoid's legs, head and other arm under a one-arm campaign: 115 lines on FIGAROH's TALOS).
+NO_EFFECT_LISTED = 6
+
+#: Owners (joints, markers, frames) that line names before "and N more".
+_OWNERS_NAMED = 8
+
+
 def _dropped_lines(d: PoseDiagnosis) -> list[str]:
-    ident = d.final.identifiability
-    labels = d.final.labels()
-    return [f"  fitted: {len(ident.kept)} parameters"] + [
-        f"  {_DROPPED.get(item.reason, 'merged')} {labels[item.index]}: "
-        f"{item.describe(labels)}" for item in ident.dropped]
+    return dropped_lines(d.final.identifiability, d.final.labels())
+
+
+def dropped_lines(ident: Identifiability, labels: list[str]) -> list[str]:
+    """The identifiability section's lines: the number fitted, then each parameter left out
+    with its reason; more than :data:`NO_EFFECT_LISTED` with no effect on the data (joints no
+    marker moves with) as one line naming their owners, the first word of their labels
+    (every one stays in the JSON's ``identifiability.dropped``)."""
+    none = [labels[item.index] for item in ident.dropped if item.reason == "no effect"]
+    grouped = len(none) > NO_EFFECT_LISTED
+    lines = [f"  fitted: {len(ident.kept)} parameters"]
+    if grouped:
+        owners = list(dict.fromkeys(name.split(" ")[0] for name in none))
+        more = len(owners) - _OWNERS_NAMED
+        lines.append(f"  dropped {len(none)} parameters of {len(owners)} joints or frames: no "
+                     "effect on the data (nothing measured moves with them): "
+                     + ", ".join(owners[:_OWNERS_NAMED])
+                     + (f" and {more} more" if more > 0 else "") + " (each one in --json)")
+    return lines + [f"  {_DROPPED.get(item.reason, 'merged')} {labels[item.index]}: "
+                    f"{item.describe(labels)}" for item in ident.dropped
+                    if not (grouped and item.reason == "no effect")]
