@@ -126,6 +126,11 @@ def prediction_chi2(residual: np.ndarray, jacobian: np.ndarray, covariance: np.n
     return float((residual @ residual - b @ np.linalg.solve(inner, b)) / sigma ** 2)
 
 
+#: A variable whose column's norm is below this fraction of the largest column's moves no
+#: seen component (the columns are exact: zero off a marker's chain, up to rounding).
+_NO_EFFECT = 1e-12
+
+
 @dataclass
 class ParameterTerm:
     """The model's fitted parameters on the campaign's seen components, to carry their
@@ -145,7 +150,7 @@ class ParameterTerm:
         The variables (the model file's labels).
     left_out
         The model's variables taken as exact: not determined by its fit (held, or along a
-        direction its data did not see).
+        direction its data did not see), of those that move a seen component.
     """
 
     residual: np.ndarray
@@ -163,12 +168,17 @@ class ParameterTerm:
            jacobian: np.ndarray, labels: list[str], to_length: float) -> ParameterTerm | None:
         """The term of the residual (SI, m) and the derivatives (m per variable, columns
         ``labels``) over the seen components, in a length unit of ``to_length`` m, with the
-        model file's ``covariance`` (``None`` without one)."""
+        model file's ``covariance`` (``None`` without one). Of the variables its fit did not
+        determine, those that move no seen component here (a humanoid's legs under a one-arm
+        campaign) are not said to be taken as exact: exact or not, they change nothing."""
         if covariance is None:
             return None
         matrix, used, left = covariance.over(labels)
+        norms = np.linalg.norm(jacobian, axis=0) if jacobian.size else np.zeros(len(labels))
+        moves = norms > _NO_EFFECT * max(float(norms.max(initial=0.0)), np.finfo(float).tiny)
         return cls(residual / to_length, jacobian[:, used] / to_length, matrix,
-                   tuple(labels[k] for k in used), tuple(left))
+                   tuple(labels[k] for k in used),
+                   tuple(name for name in left if moves[labels.index(name)]))
 
 
 @dataclass
