@@ -12,8 +12,8 @@ import pinocchio as pin
 from stiffness.calibration.identifiability import Dropped, Identifiability
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
-from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.pose_report import NO_EFFECT_LISTED, dropped_lines, format_pose_report
 from stiffness.calibration.validation import validate
 from stiffness.calibration.validation_page import format_validation
