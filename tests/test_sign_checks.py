@@ -57,3 +57,16 @@ def test_a_clean_campaign_and_a_missed_effect_name_no_column(clean):
     result = stiffness.identify(biased, starts=2)
     assert any("larger than the declared noise_std" in n for n in result.notes), result.notes
     assert _sign_notes(result) == []
+
+
+def test_diagnose_names_the_reversed_column_in_its_verdict(clean):
+    """diagnose's verdict on fx negated said UNEXPLAINED, 'the data contain something the
+    library does not model' (no reflection is in it); it now ends with the same note as
+    identify's, and --json has it as flipped_column. A clean campaign has no such key."""
+    found = stiffness.diagnose(_flipped(clean, "force", 0), max_steps=0)
+    d = found.to_dict()
+    assert d["unexplained"] is True
+    assert d["flipped_column"].startswith("with the sign of column fx reversed the residuals "
+                                          "fall ")
+    assert found.unexplained_note.endswith("; " + d["flipped_column"])
+    assert "flipped_column" not in stiffness.diagnose(clean, max_steps=0).to_dict()

@@ -103,6 +103,7 @@ from stiffness.calibration.selection import (
     pooled_replicates,
     row_support,
 )
+from stiffness.calibration.sign_checks import baseline_builder, flipped_column_note
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
 from stiffness.elastic.effects.base import Held, Parameter, effect_place, effect_report, place_label
@@ -333,6 +334,10 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
+    flipped = flipped_column_note(campaign, baseline_builder(geo, compliant, masses), base.x,
+                                  base.rss, known.sigma, fit_options(len(compliant))) if (
+        gof_final is not None and above_noise(gof_final) and loss == "linear" and known
+        is not None and base.x.size == len(compliant)) else []
     noise_final = interval_quantiles(known, final, n, campaign, measured)
     note = _final_note(final, n, known, note)
     sigma_used = noise_final.noise.sigma
@@ -366,8 +371,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         loss=loss, outliers=outliers, outlier_sigma_m=outlier_sigma, masses=masses,
         forbidden=list(forbidden), final_covariance=cov_final,
         baseline_dof=_stiffness_dof(noise_base, base),
-        final_dof=_stiffness_dof(noise_final, final),
-    )
+        final_dof=_stiffness_dof(noise_final, final), flipped_column=next(iter(flipped), None))
 
 
 def _stiffness_dof(quantiles: Quantiles, fit: Fit) -> tuple[float | None, ...]:

@@ -145,6 +145,11 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         (:func:`~stiffness.calibration.deflection_noise.interval_quantiles`, ``None`` for the
         normal's), as ``identify`` reports them: JSON ``ci95_dof`` in each entry. Empty: not
         given.
+    flipped_column
+        When the final model stays unexplained, the note naming a force or deflection column
+        whose reversed sign lets the baseline explain the data
+        (:func:`~stiffness.calibration.sign_checks.flipped_column_note`), else ``None``; in
+        the verdict and the ``--json`` key of that name.
     """
 
     geometry: Geometry
@@ -173,6 +178,7 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
     final_covariance: np.ndarray | None = None
     baseline_dof: tuple[float | None, ...] = ()
     final_dof: tuple[float | None, ...] = ()
+    flipped_column: str | None = None
 
     def rms_by_kind(self) -> dict:
         """RMS of the baseline's and the final model's residuals per kind: translations in
@@ -230,7 +236,8 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
             "baseline_cv_rms": self._len(self.cv_baseline),
             **({"baseline_cv_unbounded": True} if math.isinf(self.cv_baseline) else {}),
             "rows": self.campaign.n_rows, "configurations": len(set(self.campaign.config)),
-            "unit": self.unit, "loss": self.loss, **self.outlier_keys()})
+            "unit": self.unit, "loss": self.loss, **self.outlier_keys(),
+            **({"flipped_column": self.flipped_column} if self.flipped_column else {})})
 
     @property
     def missing_effects(self) -> list[str]:

@@ -59,8 +59,10 @@ def verdict_sentence(d: dict) -> str:
     ``cut_short``), folds too small to confirm one
     (``baseline_cv_rms`` over ``baseline_rms`` above :data:`WEAK_FOLDS`, on ``configurations``),
     where the residual sits (``residual_structure``, or ``where_final_disagrees``), the rows
-    flagged as outliers (``outliers`` of ``rows``, under ``loss``) and an understated declared
-    noise (``robust_noise_ratio``: the final residual's robust std over ``noise_std``)."""
+    flagged as outliers (``outliers`` of ``rows``, under ``loss``), an understated declared
+    noise (``robust_noise_ratio``: the final residual's robust std over ``noise_std``) and a
+    column whose reversed sign explains the data (``flipped_column``, a deflection campaign's:
+    :mod:`stiffness.calibration.sign_checks`)."""
     flag = d.get("unexplained")
     if flag is None:
         estimated = (" (it is estimated from the final model's residuals)"
@@ -76,7 +78,8 @@ def verdict_sentence(d: dict) -> str:
             "wide and an effect below the noise goes unseen"
             if noise_overstated(d["gof_p"]) else "")
     return (f"the residual is still above the noise ({test} <= {1 - GOF_LEVEL:.2g}{left_out})"
-            + _missing(d) + _weak_folds(d) + _where(d) + _flagged(d) + _understated(d))
+            + _missing(d) + _weak_folds(d) + _where(d) + _flagged(d) + _understated(d)
+            + (f"; {d['flipped_column']}" if d.get("flipped_column") else ""))
 
 
 def _missing(d: dict) -> str:

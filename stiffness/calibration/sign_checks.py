@@ -7,6 +7,9 @@ its ``fx`` column negated put two of three springs at the rigid bound and left a
 the noise, which read as "model error or underestimated noise" and sent the user to
 ``diagnose``, whose library holds no reflection.
 
+``diagnose`` checks its baseline the same way when its final model stays unexplained
+(:func:`baseline_builder`), and its verdict adds the note.
+
 So when a fit does not explain the data to its known noise (declared, or the replicates';
 the chi-square test of :func:`stiffness.calibration.deflection_noise.noise_level`),
 :func:`flipped_column_note` refits the baseline once per column ``fx, fy, fz, dx, dy, dz``
@@ -28,6 +31,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign
 from stiffness.calibration.fitting import fit_model
+from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
 
 #: The residual sum of squares must fall at least this many times with a column reversed.
@@ -83,3 +87,18 @@ def flipped_column_note(campaign: Campaign, build: Callable[[Campaign], Hypothes
             "opposite sign (a load cell's axis reversed, or unloaded minus loaded); check its "
             "sign convention and correct the column"]
 
+
+
+def baseline_builder(geometry: Geometry, compliant: tuple[str, ...], masses: str
+                     ) -> Callable[[Campaign], Hypothesis]:
+    """The stiffness-only baseline of a campaign of ``geometry``'s robot, as ``diagnose`` fits
+    it (its ``compliant`` joints, the references of the links' ``masses``), under the
+    campaign's formulation (the enhanced one for ``exact``): the ``build`` of
+    :func:`flipped_column_note`."""
+    def build(campaign: Campaign) -> Hypothesis:
+        rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
+                             joint_angles=campaign.robot_settings.joint_angles)
+        formulation = "enhanced" if campaign.baseline == "exact" else campaign.baseline
+        return Hypothesis(geometry, rows, formulation, compliant, (), References.of(
+            geometry, rows, 1e5, campaign.deflection, masses))
+    return build
