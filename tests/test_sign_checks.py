@@ -70,3 +70,13 @@ def test_diagnose_names_the_reversed_column_in_its_verdict(clean):
                                           "fall ")
     assert found.unexplained_note.endswith("; " + d["flipped_column"])
     assert "flipped_column" not in stiffness.diagnose(clean, max_steps=0).to_dict()
+
+
+def test_a_fit_without_residual_freedom_is_not_checked(clean):
+    """One row of three components for three springs, the noise declared: no chi-square
+    (p_value None). The check's condition compared None with the level: a TypeError
+    traceback from identify on a one-row campaign (found by the rig-data sweep)."""
+    one = replace(clean, q=clean.q[:1], force=clean.force[:1], deflection=clean.deflection[:1],
+                  config=clean.config[:1], lines=None)
+    result = stiffness.identify(one, starts=1)
+    assert result.fits_to_noise["p_value"] is None and _sign_notes(result) == []

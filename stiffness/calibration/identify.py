@@ -353,8 +353,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     level = noise_level(campaign, known, best_fit, measured, n_res, fitted,
                         noise_terms(best_fit, measured))
     sigma, notes = level.noise.sigma, level.notes
-    if best_fit.loss == "linear" and level.fits_to_noise is not None and above_noise(
-            level.fits_to_noise["p_value"]):  # the data missed: a column's sign reversed?
+    gof = None if level.fits_to_noise is None else level.fits_to_noise["p_value"]
+    if best_fit.loss == "linear" and gof is not None and above_noise(gof):  # a sign reversed?
         notes += flipped_column_note(
             campaign, lambda c: stiffness_model(c, "enhanced" if formulation == "exact"
                                                 else formulation, rob),
