@@ -218,3 +218,32 @@ def test_a_reference_posture_outside_a_revolute_limit_is_moved_by_a_turn_into_it
         code, _, err = run_cli(["kx", "--robot", "kinova", "--kq", ",".join(["1e5"] * 6),
                                 "--wrench", "0,0,-100", "--json"])
     assert code == 0, err
+
+
+@pytest.mark.parametrize("read", [("panda_joint1", "panda_joint2", "panda_joint3", "panda_joint4",
+                                   "panda_joint5", "panda_joint6", "panda_joint7"),
+                                  ("panda_joint1", "panda_joint2", "panda_joint3",
+                                   "panda_joint5", "panda_joint6", "panda_joint7")])
+def test_import_note_names_only_held_joints_moved_into_their_limits(tmp_path, read):
+    """campaign import --kind poses of the Panda's URDF file (its reference: the zero pose with
+    joint 4 at the middle of its limits): the note on the coordinates without a column named
+    joint 4 at the middle of its limits although the file reads it (FIGAROH's TALOS file named
+    arm_right_2 and arm_right_4, both read); it names it only when joint 4 has no column."""
+    rng = np.random.default_rng(3)
+    lines = [",".join([*read, "tip_x", "tip_y", "tip_z"])]
+    lines += [",".join(repr(float(v)) for v in [*rng.uniform(-0.5, -0.1, len(read)),
+                                                  *rng.normal(0.4, 0.1, 3)]) for _ in range(5)]
+    (tmp_path / "rig.csv").write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["campaign", "import", str(tmp_path / "rig.csv"), "--kind", "poses",
+                     "--robot", str(resolve_source("panda").urdf), "--marker", "tip=panda_hand",
+                     "--units", "angle=rad,length=m", "--quiet",
+                     "--out", str(tmp_path / "c")]) == 0
+    notes = [str(w.message) for w in caught if "have no column and are held" in str(w.message)]
+    assert len(notes) == 1, [str(w.message) for w in caught]
+    if "panda_joint4" in read:
+        assert "panda_finger_joint1 at the reference configuration, the zero pose" in notes[0]
+        assert "panda_joint4" not in notes[0] and "middle" not in notes[0], notes[0]
+    else:
+        assert "the zero pose with panda_joint4 at the middle of its limits" in notes[0], notes[0]

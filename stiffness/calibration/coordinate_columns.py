@@ -392,8 +392,9 @@ def held_coordinates(robot: Robot, index: list[int | None], fixed_si: dict[str, 
         return held
     reference = reference_configuration(robot)
     coords = np.zeros(robot.n_coordinates) if reference is None else reference.coords
-    source = "zero" if reference is None else reference.source
     names = robot.coordinate_joints
+    source = "zero" if reference is None else reference.source_for(
+        [names[k] for k in missing if names[k] not in fixed_si])
     pinned, at_reference = [], []
     for k in missing:
         if names[k] in fixed_si:

@@ -29,6 +29,16 @@ class ReferenceConfiguration:
 
     coords: np.ndarray
     source: str
+    #: the joints the zero pose moves to the middle of their limits (empty for other sources)
+    moved: tuple[str, ...] = ()
+
+    def source_for(self, joints: list[str] | tuple[str, ...]) -> str:
+        """:attr:`source` naming, of the joints moved to the middle of their limits, only those
+        among ``joints`` (the coordinates a message says are held at this configuration: a
+        joint read from a file is not held, wherever the reference puts it)."""
+        if not self.moved:
+            return self.source
+        return _zero_pose_source([name for name in self.moved if name in joints])
 
 
 def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
@@ -63,9 +73,18 @@ def reference_configuration(robot: Robot) -> ReferenceConfiguration | None:
         coords[i] = sum(finite) / len(finite)
     if not outside.any():
         return ReferenceConfiguration(coords, "zero pose (the robot brings no configuration)")
-    moved = ", ".join(np.asarray(robot.coordinate_joints)[outside])
-    return ReferenceConfiguration(coords, f"zero pose with {moved} at the middle of its limits "
-                                          "(zero is outside them)")
+    moved = tuple(str(name) for name in np.asarray(robot.coordinate_joints)[outside])
+    return ReferenceConfiguration(coords, _zero_pose_source(list(moved)), moved)
+
+
+def _zero_pose_source(moved: list[str]) -> str:
+    """The source of a tree's zero-pose reference whose joints ``moved`` sit at the middle of
+    their limits (those exclude zero)."""
+    if not moved:
+        return "zero pose"
+    whose = "its" if len(moved) == 1 else "their"
+    return (f"zero pose with {', '.join(moved)} at the middle of {whose} limits "
+            "(zero is outside them)")
 
 
 def _turned_into_limits(robot: Robot, coords: np.ndarray) -> tuple[np.ndarray, str]:
