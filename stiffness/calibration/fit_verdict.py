@@ -148,8 +148,9 @@ def _where(d: dict) -> str:
     s = d.get("residual_structure")
     if s is None:
         return "; the residual's structure (where_final_disagrees) says where to look"
-    marker, axis = (", ".join(f"{k} {v:.3g}" for k, v in s[key].items())
-                    for key in ("rms_by_marker", "rms_by_axis"))
+    marker, axis = (", ".join(f"{k} {v:.3g}" if v is not None else f"{k} never seen"
+                              for k, v in s[key].items())
+                    for key in ("rms_by_marker", "rms_by_axis"))  # a marker no row sees
     trend = max(s["row_trend"].values(), key=lambda t: abs(t["correlation"]), default=None)
     return (f"; the residual's structure says where to look: RMS ({d['unit']}) by marker "
             f"{marker}, by axis {axis}" + ("" if trend is None else
