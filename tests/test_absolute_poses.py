@@ -596,13 +596,17 @@ def test_a_single_pose_is_refused_naming_what_the_campaign_holds(ur10, tmp_path,
 def test_a_marker_no_pose_sees_leaves_the_verdict_readable(ur10, tmp_path):
     """A tracker that never saw one of the two declared markers (all its cells empty): when
     the fit stayed unexplained, diagnose's verdict formatted that marker's RMS (None) with
-    '.3g': a TypeError traceback, no report. Now it reads 'elbow never seen'."""
+    '.3g': a TypeError traceback, no report. Now it reads 'elbow never seen', and reading the
+    campaign warns that the marker is seen on no row (a marker mapped to the wrong columns)."""
     rng = np.random.default_rng(8)
     c = simulate_pose_campaign(ur10, ur10_markers(), _hidden(ur10, rng), 8, NOISE, seed=8)
     c.positions[:, 1] = np.nan
     c.positions[:, 0] += rng.normal(0.0, 20 * NOISE, c.positions[:, 0].shape)  # unexplained
     write_pose_campaign(c, tmp_path)
-    found = diagnose_poses(load_pose_campaign(tmp_path), max_steps=0)
+    with pytest.warns(DataFileWarning, match=r"measurements.csv: marker\(s\) elbow of "
+                                             r"\[markers\] are seen on no row"):
+        campaign = load_pose_campaign(tmp_path)
+    found = diagnose_poses(campaign, max_steps=0)
     d = found.to_dict()
     assert d["unexplained"] is True
     assert d["residual_structure"]["rms_by_marker"]["elbow"] is None

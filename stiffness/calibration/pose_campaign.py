@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -55,7 +56,7 @@ from stiffness.calibration.measurements import (
 from stiffness.calibration.pose_model import Loads, Marker
 from stiffness.calibration.probe_mounting import check_marker_mounting
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
-from stiffness.errors import FileFormatError, StiffnessError, did_you_mean
+from stiffness.errors import DataFileWarning, FileFormatError, StiffnessError, did_you_mean
 from stiffness.files import (
     atomic_write,
     check_csv_header,
@@ -376,6 +377,12 @@ def load_pose_campaign(path: str | os.PathLike) -> PoseCampaign:
                                                                            rot) if a is not None]),
                      numbers, data)
     warn_copied_markers([m.name for m in markers], pos, data)
+    unseen = [m.name for k, m in enumerate(markers) if not np.isfinite(pos[:, k]).any()]
+    if unseen and len(unseen) < len(markers):  # none seen: the fit refuses, naming the counts
+        warnings.warn(f"{data}: marker(s) {', '.join(unseen)} of [markers] are seen on no row "
+                      "(their cells all empty): nothing calibrates their offsets; map them to "
+                      "the tracker's columns, or drop them from [markers]", DataFileWarning,
+                      stacklevel=2)
     fixed = fixed_values(settings.fixed, robot, units,
                          lambda problem: toml.error(problem, "robot", "fixed"))
     held = held_coordinates(robot, coordinates, fixed, units, data,
