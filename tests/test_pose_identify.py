@@ -64,11 +64,15 @@ def test_stiffness_intervals_cover_the_truth_at_their_rate(ur10):
 def test_missing_geometry_is_unexplained(ur10):
     """Joint placement errors of 1e-4 (m, rad), which identification does not fit: the
     verdict says the poses are not explained and names diagnose, and the stiffness table is
-    headed as not to be trusted (not when the poses are explained)."""
+    headed as not to be trusted (not when the poses are explained). The verdict says that
+    nothing was searched, not diagnose's "the search was cut short (stopped after 0 effects
+    (max_steps))" (FIGAROH's TALOS right arm printed that: identify runs no search)."""
     result = identify(_campaign(ur10, 3, placement=1e-4))
     assert result.diagnosis.unexplained
     text = result.format()
     assert "UNEXPLAINED" in text and "stiffness diagnose" in text
+    assert "nothing was searched (identify fits the springs" in text, text
+    assert "search was cut short" not in text and "max_steps" not in text, text
     assert text.index("NOT TO BE TRUSTED") < text.index("shoulder_lift_joint =")  # the table
     assert "NOT TO BE TRUSTED" not in identify(_campaign(ur10, 0)).format()
 

@@ -56,7 +56,7 @@ def verdict_sentence(d: dict) -> str:
     reading the numbers allow: a missing effect outside the library, or a library effect this
     campaign is too small to confirm (``best_rejected``: what it did, what would confirm it;
     else why the search added nothing, ``stop_reason``, or that ``--max-steps`` cut it short,
-    ``cut_short``), folds too small to confirm one
+    ``cut_short``; ``searched`` false: no search was run, ``stiffness identify``'s fit), folds too small to confirm one
     (``baseline_cv_rms`` over ``baseline_rms`` above :data:`WEAK_FOLDS`, on ``configurations``),
     where the residual sits (``residual_structure``, or ``where_final_disagrees``), the rows
     flagged as outliers (``outliers`` of ``rows``, under ``loss``), an understated declared
@@ -85,7 +85,13 @@ def verdict_sentence(d: dict) -> str:
 def _missing(d: dict) -> str:
     """What the search's end says is missing: an effect outside the library, or the best
     library effect it rejected (when it lowers BIC), which this campaign is too small to
-    confirm."""
+    confirm; with ``searched`` false (``stiffness identify``, which searches nothing), what
+    the fit left out."""
+    if d.get("searched") is False:  # stiffness identify: the springs forced in, nothing tried
+        return (" and nothing was searched (identify fits the springs with the measuring frame "
+                "and markers only): what the data hold beyond them, a geometric error a "
+                "diagnosis names (joint offsets, placements) or something the library does not "
+                "model, is in the residual and in the stiffnesses")
     best = d.get("best_rejected")
     if best is None:
         stop = d.get("stop_reason", "")

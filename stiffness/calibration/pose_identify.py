@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from stiffness.calibration.fit_verdict import verdict_line
 from stiffness.calibration.outliers import describe_outliers, outlier_keys
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
@@ -113,7 +114,8 @@ class PoseIdentification(IdentificationResult):
                          "below); these stiffnesses take what it misses")
         lines += [f"  {p.text()}" for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
-                      f"({fit.sigma_source}); " + d.verdict()]
+                      f"({fit.sigma_source}); "
+                  + verdict_line({**d.verdict_keys(), "searched": False})]
         lines += d.plausibility.notes()
         if d.unexplained and verdict is None:
             where = c.name if c.path is None else str(c.path.parent)
