@@ -56,7 +56,8 @@ def verdict_sentence(d: dict) -> str:
     reading the numbers allow: a missing effect outside the library, or a library effect this
     campaign is too small to confirm (``best_rejected``: what it did, what would confirm it;
     else why the search added nothing, ``stop_reason``, or that ``--max-steps`` cut it short,
-    ``cut_short``; ``searched`` false: no search was run, ``stiffness identify``'s fit), folds too small to confirm one
+    ``cut_short``; ``searched`` false: no search was run, ``stiffness identify``'s fit),
+    folds too small to confirm one
     (``baseline_cv_rms`` over ``baseline_rms`` above :data:`WEAK_FOLDS`, on ``configurations``),
     where the residual sits (``residual_structure``, or ``where_final_disagrees``), the rows
     flagged as outliers (``outliers`` of ``rows``, under ``loss``), an understated declared
