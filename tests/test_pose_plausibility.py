@@ -183,3 +183,35 @@ def test_the_output_folder_and_the_model_file_say_it(shrunk, tmp_path, monkeypat
     assert "NOT A CALIBRATION" in paths["page"].read_text()
     _, warned = quietly(lambda: read_pose_calibration(paths["model"]))
     assert len(warned) == 1 and '[units] length = "m"' in warned[0]
+
+
+@pytest.mark.parametrize("elbow_deg", [8.0, 1.0])
+def test_a_zero_offset_beyond_a_few_degrees_is_implausible(elbow_deg):
+    """A UR10 whose elbow encoder reads 8 deg off (the other zeros 0.3 deg off), 12 poses, two
+    markers, 20 um noise: the fit finds the elbow's offset (its interval covers 8 deg), and
+    the plausibility names it beyond the 5 deg limit (IMPLAUSIBLE ANGLES, plausible false,
+    ``beyond_angles``; the lengths still plausible: no NOT A CALIBRATION). At 1 deg nothing is
+    said. FIGAROH's TALOS right arm (39 poses) had +8.2 and -7.6 deg on arm_right_4/5."""
+    robot = load_robot("ur10", frame="tool0")
+    offsets = np.radians([0.3, -0.3, elbow_deg, 0.3, -0.3, 0.3])
+    hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])), np.array([2.0, -1.0, 0.5]),
+                              np.array([m.offset for m in MARKERS]), offsets, np.zeros((6, 6)))
+    campaign = simulate_pose_campaign(robot, MARKERS, hidden, 12, 20e-6, seed=4)
+    d = diagnose_poses(campaign, families=["joint_offsets"], max_steps=0)
+    labels = [p.label for p in d.final.model.parameters]
+    k = labels.index("elbow_joint zero")
+    low, high = d.final.interval()
+    assert low[k] <= offsets[2] <= high[k]
+    p = d.plausibility
+    record = d.to_dict()["plausibility"]
+    assert p.lengths_plausible and record["beyond"] == []
+    if elbow_deg < 5.0:
+        assert p.plausible and p.verdict() is None and record["beyond_angles"] == []
+        assert "IMPLAUSIBLE" not in format_pose_report(d)
+        return
+    assert not p.plausible and [b.parameter for b in p.turned] == ["elbow_joint zero"]
+    assert record["beyond_angles"][0]["unit"] == "rad"
+    assert record["beyond_angles"][0]["limit"] == pytest.approx(np.radians(5.0))
+    verdict = next(line for line in format_pose_report(d).splitlines()
+                   if line.startswith("IMPLAUSIBLE ANGLES"))
+    assert "elbow_joint zero +0.14 rad (+8" in verdict and "NOT A CALIBRATION" not in verdict

@@ -21,8 +21,18 @@ robot's size (its reach, :func:`~stiffness.robot.kinematics.reach`):
   markers' frames) is wrong, and the length unit that brings it to 1 is the likely one.
 
 Any of them makes the fit *not a calibration* (:attr:`Plausibility.plausible` false). The
-measuring frame is free (a tracker 250 m from the robot, or a site's coordinates, is normal)
-and so are the revolute zero offsets and every rotation: a unit shows in lengths.
+measuring frame is free (a tracker 250 m from the robot, or a site's coordinates, is normal),
+its rotation too: a unit shows in lengths.
+
+Angles are judged apart, against the physical limit of their family
+(:attr:`~stiffness.elastic.effects.pose_face.PoseFamily.plausible_angle_rad`, a few degrees:
+:data:`~stiffness.elastic.effects.kinematic_errors.DEFLECTION_OFFSET_RAD`): a revolute joint's
+zero offset, a joint placement's turn or the base's tilt beyond it is **implausible**
+(:attr:`Plausibility.turned`; :attr:`Plausibility.plausible` false as well, the verdict headed
+``IMPLAUSIBLE ANGLES`` when the lengths are plausible). An encoder zero off by degrees is
+remastered, not calibrated; a fit that puts it there has traded parameters the campaign does
+not tell apart, or the model's zero convention is not the robot's. A probe's mounting turn is
+the mounting check's (:mod:`stiffness.calibration.probe_mounting`).
 
 A marker whose fitted offset is a unit's factor (10 or more) times its declared one, in the
 same direction (cosine above :data:`SAME_DIRECTION`), had its offset declared in another unit
@@ -68,10 +78,18 @@ class Beyond:
     parameter: str
     value: float
     limit: float
+    #: "m", or "rad" for an angle (:attr:`Plausibility.turned`)
+    unit: str = "m"
 
     def to_dict(self) -> dict:
         return {"parameter": self.parameter, "value": self.value, "limit": self.limit,
-                "unit": "m"}
+                "unit": self.unit}
+
+    def text(self) -> str:
+        """``label value unit`` (an angle in rad and deg)."""
+        if self.unit == "rad":
+            return f"{self.parameter} {self.value:+.3g} rad ({math.degrees(self.value):+.3g} deg)"
+        return f"{self.parameter} {self.value:.3g} m"
 
 
 @dataclass(frozen=True)
@@ -117,6 +135,8 @@ class Plausibility:
     beyond: tuple[Beyond, ...]
     spread: float | None
     offsets: tuple[OffsetUnit, ...]
+    #: angles beyond their family's limit (rad)
+    turned: tuple[Beyond, ...] = ()
 
     @property
     def spread_off(self) -> bool:
@@ -125,7 +145,13 @@ class Plausibility:
 
     @property
     def plausible(self) -> bool:
-        """Whether the fit can be a calibration (no length beyond it, the spread about 1)."""
+        """Whether the fit can be a calibration (no length or angle beyond it, the spread
+        about 1)."""
+        return not self.beyond and not self.spread_off and not self.turned
+
+    @property
+    def lengths_plausible(self) -> bool:
+        """Whether the lengths and the spread can be a calibration's (no unit read wrong)."""
         return not self.beyond and not self.spread_off
 
     @property
@@ -136,15 +162,35 @@ class Plausibility:
         return likely_length_unit(1.0 / self.spread, self.units)
 
     def verdict(self) -> str | None:
-        """The report's line when the fit is no calibration (``None`` when it can be one)."""
+        """The report's line when the fit is no calibration (``None`` when it can be one):
+        ``NOT A CALIBRATION`` for lengths (:meth:`length_verdict`), ``IMPLAUSIBLE ANGLES``
+        for angles alone (:meth:`angle_verdict`), both parts when both."""
         if self.plausible:
             return None
+        if self.lengths_plausible:
+            return f"IMPLAUSIBLE ANGLES: {self.angle_verdict()}"
+        angles = f"; and {self.angle_verdict()}" if self.turned else ""
+        return f"{self.length_verdict()}{angles}"
+
+    def angle_verdict(self) -> str:
+        """The angles beyond their limits, and what to do."""
+        quoted = ", ".join(b.text() for b in self.turned[:QUOTED])
+        more = len(self.turned) - QUOTED
+        limit = max(b.limit for b in self.turned)
+        return (f"the fit turns {quoted}" + (f" (and {more} more)" if more > 0 else "")
+                + f", beyond the {math.degrees(limit):.3g} deg an encoder zero, a joint axis "
+                f"or a level base is off by; poses that move these joints over more of "
+                "their range tell such parameters apart, or the model's zero or axis differs "
+                "from the robot's (check the joint's zero and sign)")
+
+    def length_verdict(self) -> str:
+        """``NOT A CALIBRATION``: the lengths and spread (module docstring)."""
         parts = []
         if self.spread_off and self.spread is not None:
             parts.append(f"the measured markers move {self.spread:.3g} times as far between "
                          f"poses as {self.robot}'s kinematics moves them")
         if self.beyond:
-            quoted = ", ".join(f"{b.parameter} {b.value:.3g} m" for b in self.beyond[:QUOTED])
+            quoted = ", ".join(b.text() for b in self.beyond[:QUOTED])
             more = len(self.beyond) - QUOTED
             parts.append(f"the fit moves {quoted}" + (f" (and {more} more)" if more > 0 else "")
                          + f", beyond what a calibration corrects on a robot of reach "
@@ -165,7 +211,8 @@ class Plausibility:
                 "likely_length_unit": self.likely_unit, "reach_m": self.reach_m,
                 "placement_limit_m": PLACEMENT_FRACTION * self.reach_m,
                 "beyond": [b.to_dict() for b in self.beyond],
-                "marker_offsets": [o.to_dict(self.units) for o in self.offsets]}
+                "marker_offsets": [o.to_dict(self.units) for o in self.offsets],
+                "beyond_angles": [b.to_dict() for b in self.turned]}
 
 
 def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
@@ -190,7 +237,22 @@ def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
                            campaign.positions)
     beyond.sort(key=lambda b: -abs(b.value) / b.limit)
     return Plausibility(robot.title, size, campaign.units, tuple(beyond),
-                        None if spread is None else spread[0], tuple(offsets))
+                        None if spread is None else spread[0], tuple(offsets), _turned(fit))
+
+
+def _angle_limits(fit: PoseFit) -> np.ndarray:
+    """(p,) each parameter's angle limit (rad; NaN: not an angle its family judges)."""
+    limits = [FAMILIES[p.family].plausible_angle_rad for p in fit.model.parameters]
+    return np.array([np.nan if lim is None or p.unit != "rad" else lim
+                     for lim, p in zip(limits, fit.model.parameters, strict=True)])
+
+
+def _turned(fit: PoseFit) -> tuple[Beyond, ...]:
+    """The angles beyond their family's limit, farthest first."""
+    limits = _angle_limits(fit)
+    out = [Beyond(p.label, float(fit.x[i]), float(limits[i]), "rad")
+           for i, p in enumerate(fit.model.parameters) if abs(fit.x[i]) > limits[i]]
+    return tuple(sorted(out, key=lambda b: -abs(b.value) / b.limit))
 
 
 def _declared_unit(declared: np.ndarray, fitted: np.ndarray, units: Units

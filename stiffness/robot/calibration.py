@@ -225,8 +225,9 @@ def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
     Warns
     -----
     DataFileWarning
-        The file's ``plausibility`` says the fit is no calibration (a length unit read wrong:
-        :mod:`stiffness.calibration.pose_plausibility`), with its verdict.
+        The file's ``plausibility`` says the fit is no calibration (a length unit read wrong,
+        or angles beyond a few degrees: :mod:`stiffness.calibration.pose_plausibility`), with
+        its verdict.
     """
     path = Path(path)
     doc = read_json(path, "model file")

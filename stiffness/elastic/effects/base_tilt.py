@@ -33,6 +33,7 @@ import pinocchio as pin
 
 from stiffness.batch.poses import JointPlacements, mass_jacobians
 from stiffness.elastic.effects.geometry import skew
+from stiffness.elastic.effects.kinematic_errors import DEFLECTION_OFFSET_RAD
 from stiffness.elastic.effects.link_bends import BendCache, gravity_slope
 from stiffness.elastic.effects.pose_face import (
     FamilyParameter,
@@ -90,6 +91,10 @@ class BaseTilt(JointDeflectionFamily):
     #: a level base is the absent tilt (a vertical base joint carries gravity's torque only
     #: once the base is tilted), as the elastic families' rigid arm
     absent_at_zero: ClassVar[bool] = True
+    #: a floor is level to a degree: a tilt beyond a few degrees more than the declared one
+    #: (:data:`DECLARED_TILT`) is a mounting not declared (a wall or ceiling), or gravity
+    #: taking what the model misses
+    plausible_angle_rad: ClassVar[float | None] = DEFLECTION_OFFSET_RAD
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         return [self.param("base tilt rx", "rad"), self.param("base tilt ry", "rad")]

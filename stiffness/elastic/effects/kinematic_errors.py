@@ -195,6 +195,10 @@ class JointOffsets(Settings, PoseFamily):
     value_counts: ClassVar[tuple[int, ...]] = tuple(range(1, 13))
     #: a prismatic joint's zero offset beyond the reach is a unit, not an error
     plausible_reach_fraction: ClassVar[float | None] = 1.0
+    #: a revolute joint's encoder zero off by more than a few degrees is remastered, not
+    #: calibrated (:data:`DEFLECTION_OFFSET_RAD`); a fit beyond it trades offsets the campaign
+    #: does not tell apart, or reads another zero convention
+    plausible_angle_rad: ClassVar[float | None] = DEFLECTION_OFFSET_RAD
 
     @classmethod
     def at_place(cls, where, geometry=None):
@@ -317,6 +321,9 @@ class JointGeometry(PoseFamily):
 
     name: ClassVar[str] = "geometry"
     plausible_reach_fraction: ClassVar[float | None] = PLACEMENT_FRACTION
+    #: a machined joint's axis is off its drawing by fractions of a degree: a placement turned
+    #: by more than a zero offset may be (:data:`DEFLECTION_OFFSET_RAD`) is no calibration
+    plausible_angle_rad: ClassVar[float | None] = DEFLECTION_OFFSET_RAD
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         names = pm.robot.model.names

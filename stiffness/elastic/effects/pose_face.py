@@ -264,6 +264,10 @@ class PoseFamily(Effect):
     #: robot's reach (:mod:`stiffness.calibration.pose_plausibility`); ``None``: not judged
     #: (the measuring frame is free, the marker offsets are judged whole)
     plausible_reach_fraction: ClassVar[float | None] = None
+    #: the largest of its angles (rad parameters) a calibration corrects (rad,
+    #: :mod:`stiffness.calibration.pose_plausibility`); ``None``: not judged (the measuring
+    #: frame's rotation is free, a probe's mounting turn is the mounting check's)
+    plausible_angle_rad: ClassVar[float | None] = None
 
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
