@@ -24,6 +24,7 @@ import pytest
 from stiffness.calibration import pose_diagnosis
 from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_fit import rows_of
 from stiffness.calibration.pose_identify import identify_poses
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
@@ -215,3 +216,50 @@ def test_a_zero_offset_beyond_a_few_degrees_is_implausible(elbow_deg):
     verdict = next(line for line in format_pose_report(d).splitlines()
                    if line.startswith("IMPLAUSIBLE ANGLES"))
     assert "elbow_joint zero +0.14 rad (+8" in verdict and "NOT A CALIBRATION" not in verdict
+
+
+@pytest.mark.parametrize("wrist_deg", [-7.5, 7.5])
+def test_two_offsets_the_campaign_does_not_tell_apart_are_named_cancelling(wrist_deg):
+    """A UR10 whose forearm keeps its direction over the campaign (shoulder_lift + elbow and
+    shoulder_pan held within 0.03 rad, 15 poses, one marker, 20 um): opposite zero offsets
+    on the parallel elbow and wrist_1 axes move the wrist by one translation, which the
+    measuring frame takes, so the fit trades one for the other. Hidden +8 and -7.5 deg: both
+    beyond the limit and named as cancelling, with their correlation, which a finite-difference
+    Jacobian of the model's predictions gives too (cov = (J^T J)^-1). Hidden +8 and +7.5 deg
+    (same correlation, values that add, not cancel): beyond the limit, not cancelling."""
+    robot = load_robot("ur10", frame="tool0")
+    rng = np.random.default_rng(1)
+    lift = rng.uniform(-1.5, -0.5, 15)
+    q = np.column_stack([0.3 + rng.uniform(-0.03, 0.03, 15), lift,
+                         1.0 - lift + rng.uniform(-0.03, 0.03, 15), rng.uniform(-2, 2, (15, 3))])
+    offsets = np.radians([0.0, 0.0, 8.0, wrist_deg, 0.3, 0.3])
+    markers = MARKERS[:1]
+    hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])), np.array([2.0, -1.0, 0.5]),
+                              np.array([m.offset for m in markers]), offsets, np.zeros((6, 6)))
+    campaign = simulate_pose_campaign(robot, markers, hidden, 15, 20e-6, seed=1, coordinates=q)
+    d = diagnose_poses(campaign, families=["joint_offsets"], max_steps=0)
+    p, fit = d.plausibility, d.final
+    assert {b.parameter for b in p.turned} == {"elbow_joint zero", "wrist_1_joint zero"}
+    labels = [par.label for par in fit.model.parameters]
+    kept = fit.identifiability.kept
+    rows = rows_of(fit.model, campaign)
+    columns = []
+    for i in kept:
+        step = np.zeros(fit.model.size)
+        step[i] = 1e-6
+        ahead, behind = (fit.model.evaluate(fit.x + s, rows, jacobian=False)[0].ravel()
+                         for s in (step, -step))
+        columns.append((ahead - behind) / 2e-6)
+    cov = np.linalg.inv(np.array(columns) @ np.array(columns).T)
+    a, b = kept.index(labels.index("elbow_joint zero")), kept.index(
+        labels.index("wrist_1_joint zero"))
+    rho = cov[a, b] / np.sqrt(cov[a, a] * cov[b, b])
+    assert rho < -0.95
+    record = d.to_dict()["plausibility"]["cancelling"]
+    if wrist_deg > 0:
+        assert p.cancelling == () and record == [] and "cancel" not in p.verdict()
+        return
+    assert [c.parameters for c in p.cancelling] == [("elbow_joint zero", "wrist_1_joint zero")]
+    assert p.cancelling[0].correlation == pytest.approx(rho, abs=1e-3)
+    assert record[0]["unit"] == "rad" and record[0]["correlation"] == pytest.approx(rho, abs=1e-3)
+    assert "elbow_joint zero and wrist_1_joint zero (+8 and -7.5 deg) cancel" in p.verdict()

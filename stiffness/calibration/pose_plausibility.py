@@ -31,8 +31,12 @@ zero offset, a joint placement's turn or the base's tilt beyond it is **implausi
 (:attr:`Plausibility.turned`; :attr:`Plausibility.plausible` false as well, the verdict headed
 ``IMPLAUSIBLE ANGLES`` when the lengths are plausible). An encoder zero off by degrees is
 remastered, not calibrated; a fit that puts it there has traded parameters the campaign does
-not tell apart, or the model's zero convention is not the robot's. A probe's mounting turn is
-the mounting check's (:mod:`stiffness.calibration.probe_mounting`).
+not tell apart, or the model's zero convention is not the robot's. Where the covariance shows
+the trade, a pair of angles, one beyond its limit and the other beyond half of it, whose
+estimates correlate past :data:`CANCEL_CORRELATION` in the sense that makes their effects
+cancel (``rho a b > 0``: nearly parallel columns, opposite values), is named as *cancelling*
+(:class:`Cancelling`). A probe's mounting turn is the mounting check's
+(:mod:`stiffness.calibration.probe_mounting`).
 
 A marker whose fitted offset is a unit's factor (10 or more) times its declared one, in the
 same direction (cosine above :data:`SAME_DIRECTION`), had its offset declared in another unit
@@ -67,6 +71,9 @@ from stiffness.units import LENGTH_UNITS, Units
 SAME_DIRECTION = 0.95
 #: At most this many parameters are quoted in the verdict line (all in ``--json``).
 QUOTED = 3
+#: Correlation of two angles' estimates past which, their values cancelling, the campaign does
+#: not tell them apart (the fit trades one for the other).
+CANCEL_CORRELATION = 0.9
 
 
 @dataclass(frozen=True)
@@ -90,6 +97,26 @@ class Beyond:
         if self.unit == "rad":
             return f"{self.parameter} {self.value:+.3g} rad ({math.degrees(self.value):+.3g} deg)"
         return f"{self.parameter} {self.value:.3g} m"
+
+
+@dataclass(frozen=True)
+class Cancelling:
+    """Two angles (rad) whose estimates correlate by ``correlation`` in the sense that makes
+    their effects cancel, one beyond its limit (module docstring)."""
+
+    parameters: tuple[str, str]
+    values: tuple[float, float]
+    correlation: float
+
+    def text(self) -> str:
+        a, b = self.parameters
+        return (f"{a} and {b} ({math.degrees(self.values[0]):+.3g} and "
+                f"{math.degrees(self.values[1]):+.3g} deg) cancel: their estimates correlate "
+                f"{self.correlation:+.3f}, the campaign does not tell them apart")
+
+    def to_dict(self) -> dict:
+        return {"parameters": list(self.parameters), "values": list(self.values),
+                "unit": "rad", "correlation": self.correlation}
 
 
 @dataclass(frozen=True)
@@ -135,8 +162,9 @@ class Plausibility:
     beyond: tuple[Beyond, ...]
     spread: float | None
     offsets: tuple[OffsetUnit, ...]
-    #: angles beyond their family's limit (rad)
+    #: angles beyond their family's limit (rad), and the pairs of angles that cancel
     turned: tuple[Beyond, ...] = ()
+    cancelling: tuple[Cancelling, ...] = ()
 
     @property
     def spread_off(self) -> bool:
@@ -173,13 +201,14 @@ class Plausibility:
         return f"{self.length_verdict()}{angles}"
 
     def angle_verdict(self) -> str:
-        """The angles beyond their limits, and what to do."""
+        """The angles beyond their limits, the pairs that cancel, and what to do."""
         quoted = ", ".join(b.text() for b in self.turned[:QUOTED])
         more = len(self.turned) - QUOTED
         limit = max(b.limit for b in self.turned)
+        cancel = "".join(f"; {c.text()}" for c in self.cancelling)
         return (f"the fit turns {quoted}" + (f" (and {more} more)" if more > 0 else "")
                 + f", beyond the {math.degrees(limit):.3g} deg an encoder zero, a joint axis "
-                f"or a level base is off by; poses that move these joints over more of "
+                f"or a level base is off by{cancel}; poses that move these joints over more of "
                 "their range tell such parameters apart, or the model's zero or axis differs "
                 "from the robot's (check the joint's zero and sign)")
 
@@ -212,7 +241,8 @@ class Plausibility:
                 "placement_limit_m": PLACEMENT_FRACTION * self.reach_m,
                 "beyond": [b.to_dict() for b in self.beyond],
                 "marker_offsets": [o.to_dict(self.units) for o in self.offsets],
-                "beyond_angles": [b.to_dict() for b in self.turned]}
+                "beyond_angles": [b.to_dict() for b in self.turned],
+                "cancelling": [c.to_dict() for c in self.cancelling]}
 
 
 def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
@@ -236,8 +266,10 @@ def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
                            np.array([m.offset for m in campaign.markers]), campaign.q,
                            campaign.positions)
     beyond.sort(key=lambda b: -abs(b.value) / b.limit)
+    turned = _turned(fit)
     return Plausibility(robot.title, size, campaign.units, tuple(beyond),
-                        None if spread is None else spread[0], tuple(offsets), _turned(fit))
+                        None if spread is None else spread[0], tuple(offsets), turned,
+                        _cancelling(fit, turned))
 
 
 def _angle_limits(fit: PoseFit) -> np.ndarray:
@@ -253,6 +285,29 @@ def _turned(fit: PoseFit) -> tuple[Beyond, ...]:
     out = [Beyond(p.label, float(fit.x[i]), float(limits[i]), "rad")
            for i, p in enumerate(fit.model.parameters) if abs(fit.x[i]) > limits[i]]
     return tuple(sorted(out, key=lambda b: -abs(b.value) / b.limit))
+
+
+def _cancelling(fit: PoseFit, turned: tuple[Beyond, ...]) -> tuple[Cancelling, ...]:
+    """The pairs of fitted angles whose estimates correlate past :data:`CANCEL_CORRELATION`
+    with values that cancel (``rho a b > 0``), one beyond its limit and the other beyond half
+    of it (module docstring)."""
+    if not turned:
+        return ()
+    limits, kept, x = _angle_limits(fit), fit.identifiability.kept, fit.x
+    std = np.sqrt(np.diag(fit.covariance))
+    labels = [p.label for p in fit.model.parameters]
+    out = []
+    for a in range(len(kept)):
+        for b in range(a + 1, len(kept)):
+            i, j = kept[a], kept[b]
+            if not (abs(x[i]) > 0.5 * limits[i] and abs(x[j]) > 0.5 * limits[j]
+                    and max(abs(x[i]) / limits[i], abs(x[j]) / limits[j]) > 1.0):
+                continue  # NaN limits (not judged angles) compare false
+            with np.errstate(divide="ignore", invalid="ignore"):  # a zero std: NaN, no pair
+                rho = float(fit.covariance[a, b] / (std[a] * std[b]))
+            if abs(rho) > CANCEL_CORRELATION and rho * x[i] * x[j] > 0:
+                out.append(Cancelling((labels[i], labels[j]), (float(x[i]), float(x[j])), rho))
+    return tuple(out)
 
 
 def _declared_unit(declared: np.ndarray, fitted: np.ndarray, units: Units
