@@ -256,11 +256,8 @@ class LoopClosure:
 
         Placements (``computeJointJacobians`` or forward kinematics) must be up to date.
         """
-        out = []
-        for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
-            cm.calc(model, data, cd)
-            out.append(np.array(cd.constraint_position_error))
-        return (out[0] if len(out) == 1 else np.concatenate(out)) if out else np.zeros(0)
+        self._calc(model, data)
+        return self._residual()
 
     def jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """Exact Jacobian (n_rows, nv) of :meth:`residual`; joint Jacobians must be up to date.
@@ -269,18 +266,35 @@ class LoopClosure:
         respect to frame a in a's axes; the derivative of ``log6(aMb)`` is
         ``Jlog6(aMb) Ad(bMa)`` times it (equal to it on the closed loop).
         """
+        self._calc(model, data)
+        return self._jacobian(model, data)
+
+    def _calc(self, model: pin.Model, data: pin.Data) -> None:
+        """Evaluate the constraints (their datas) at the current placements."""
+        for cm, cd in zip(self.constraints, self.constraint_datas, strict=True):
+            cm.calc(model, data, cd)
+
+    def _residual(self) -> np.ndarray:
+        """:meth:`residual` from the constraint datas as :meth:`_calc` left them."""
+        errors = [cd.constraint_position_error for cd in self.constraint_datas]
+        if len(errors) == 1:
+            return np.array(errors[0])
+        return np.concatenate(errors) if errors else np.zeros(0)
+
+    def _jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
+        """:meth:`jacobian` from the constraint datas as :meth:`_calc` left them."""
         rows = []
         for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
                                 strict=True):
-            cm.calc(model, data, cd)
-            jac = np.array(pin.getConstraintJacobian(model, data, cm, cd)).reshape(-1, model.nv)
+            jac = pin.getConstraintJacobian(model, data, cm, cd)
             if pair.kind == "6D":
                 a_m_b = cd.c1Mc2
-                jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() @ jac
+                jac = pin.Jlog6(a_m_b) @ a_m_b.inverse().toActionMatrix() \
+                    @ np.array(jac).reshape(-1, model.nv)
             rows.append(jac)
         if len(rows) == 1:
-            return rows[0]  # a new array already
-        return np.vstack(rows) if rows else np.zeros((0, model.nv))
+            return np.array(rows[0])
+        return np.concatenate(rows) if rows else np.zeros((0, model.nv))
 
     def _world_points(self, model: pin.Model) -> list[list[_PointPair] | None]:
         """Per pair, the ((joint_a, placement_a), (joint_b, placement_b)) point pairs (None for
@@ -470,10 +484,11 @@ class LoopClosure:
         q = q.copy()
         for _ in range(max_iterations):
             kinematics.update_first_order(model, data, q)
-            c = self.residual(model, data)
+            self._calc(model, data)  # once for the residual and its Jacobian
+            c = self._residual()
             if math.sqrt(c.dot(c)) < CLOSURE_TOLERANCE_M:  # np.linalg.norm's arithmetic
                 return q
-            cp = self.jacobian(model, data)[:, self.passive_v]
+            cp = self._jacobian(model, data)[:, self.passive_v]
             step = np.linalg.lstsq(cp, -c, rcond=1e-10)[0]
             norm = math.sqrt(step.dot(step))
             if norm > MAX_STEP:
