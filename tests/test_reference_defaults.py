@@ -247,3 +247,18 @@ def test_import_note_names_only_held_joints_moved_into_their_limits(tmp_path, re
         assert "panda_joint4" not in notes[0] and "middle" not in notes[0], notes[0]
     else:
         assert "the zero pose with panda_joint4 at the middle of its limits" in notes[0], notes[0]
+
+
+@pytest.mark.parametrize(("named", "said"), [
+    ("panda_joint4=-1.2", "zero pose"),
+    ("panda_joint1=0.1", "zero pose with panda_joint4 at the middle of its limits (zero is "
+                         "outside them)")])
+def test_q_pairs_echo_names_only_unnamed_joints_moved_into_their_limits(named, said):
+    """kx --q name=value on the Panda's URDF file: the echo of the coordinates not named
+    named joint 4 at the middle of its limits even when --q gives it."""
+    urdf = str(resolve_source("panda").urdf)
+    code, out, err = run_cli(["kx", "--robot", urdf, "--kq", ",".join(["1e5"] * 7),
+                              "--wrench", "0,0,-100", "--q", named, "--json"])
+    assert code == 0, err
+    source = json.loads(out)["sources"]["q"]
+    assert source == f"flag --q (coordinates not named: {said})", source

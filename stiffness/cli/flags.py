@@ -651,10 +651,23 @@ def coordinates_source(robot: Robot, args: argparse.Namespace, flag: str = "--q"
         return rest if reference is not None else f"{rest} (no default)"
     items = [item for item in text.split(",") if item.strip()]
     if "=" in text and len(items) < robot.n_coordinates:
+        if reference is not None:  # of the joints it moved into their limits, the unnamed
+            named = _named_coordinates(robot, items, flag)
+            rest = reference.source_for([j for j in robot.coordinate_joints if j not in named])
         return f"{FROM_FLAG} {flag} (coordinates not named: {rest})"
     if robot.branch_joints and len(items) == len(robot.chain_joints):
         return f"{FROM_FLAG} {flag} ({', '.join(robot.branch_joints)}: {rest})"
     return f"{FROM_FLAG} {flag}"
+
+
+def _named_coordinates(robot: Robot, items: list[str], flag: str) -> set[str]:
+    """The coordinates ``name=value`` items of ``flag`` name (joint names or ``q1``...;
+    items that are no such pair are left out: :func:`coordinates_from_args` refuses them)."""
+    from stiffness.robot.robot import coordinate_index
+
+    pairs = [_PAIR.match(item) for item in items]
+    return {robot.coordinate_joints[coordinate_index(robot, m.group(1), flag)]
+            for m in pairs if m is not None}
 
 
 def format_named(names: Sequence[str], values: Sequence[float], digits: int = 6) -> str:
