@@ -72,6 +72,7 @@ from stiffness.batch.poses import (
     support_masks,
 )
 from stiffness.calibration.pose_loops import PoseLoops, projected
+from stiffness.calibration.pose_sag import sag_jump
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base_tilt import declared_tilt, tilted_gravity
 from stiffness.elastic.effects.kinematic_errors import MeasuringFrame
@@ -90,14 +91,15 @@ from stiffness.units import Units
 #: Tolerance (rad or m) and iteration cap of the sag's fixed point.
 SAG_TOLERANCE = 1e-13
 SAG_ITERATIONS = 50
-#: Relative spread of the ratio of successive sag steps under which a row's passes follow one
-#: slow mode (:func:`_sag_jump`).
-SAG_STEADY_RATIO = 1e-3
 #: Rows a model of row-at-once families evaluates together (bounds the arrays a large
 #: campaign's evaluation holds besides its Jacobian).
 ROW_BLOCK = 1024
 SAG_DIVERGES = ("the sag of the fitted compliance does not converge: the compliance is too "
                 "large for the arm's weight; check the campaign's units and masses")
+SAG_BUCKLES = ("the sag of the fitted compliance has no stable equilibrium: the load is beyond "
+               "the arm's buckling load; check the campaign's units, masses and loads")
+#: Step (rad or m) of the central differences of a sag pass (:meth:`PoseModel._newton_step`).
+SAG_DIFFERENCE = 1e-6
 
 
 class PoseModelError(StiffnessError):
@@ -471,9 +473,13 @@ class PoseModel:
         from the row's last converged sag (an optimiser's next trial differs little from its
         last), and from zero if that does not converge. A row whose passes contract at a
         steady ratio (a slow mode: a steep lost motion, a lumped weight) jumps to the limit
-        they approach (:func:`_sag_jump`) and iterates on from there; the verdict stays the
-        plain passes': an attempt fails where they would need more than
-        :data:`SAG_ITERATIONS`."""
+        they approach (:func:`~stiffness.calibration.pose_sag.sag_jump`) and iterates on from
+        there; the verdict stays the plain passes': an attempt fails where they would need
+        more than :data:`SAG_ITERATIONS`. A row whose plain step does not shrink (a load that
+        stiffens the arm strongly: an eigenvalue of ``C K_C`` below -1, the passes oscillate
+        and grow though ``K - K_C`` is positive definite) takes Newton's steps from there
+        (:meth:`_newton_step`), each after a pass that judges convergence as before; an
+        equilibrium they reach that is unstable is refused (:data:`SAG_BUCKLES`)."""
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
         if not self.elastic:
@@ -532,25 +538,35 @@ class PoseModel:
         for attempt in range(2):  # from the last converged sag, then from zero
             trail = np.zeros((3, n, nv))  # each row's steps of the last three passes
             start = np.zeros(n, dtype=int)  # the pass its plain steps start at (its jump)
+            before = np.full(n, np.inf)  # each row's last step (its largest component)
+            newton = np.full(n, np.inf)  # lowest eigenvalue of a Newton row's last I - dPhi/ds
             failed = np.zeros(0, dtype=int)
             for k in range(SAG_ITERATIONS):
                 if not pending.size:
                     break
-                q, tangent = self._configurations(model, data, commanded[pending],
-                                                  offsets + sag[pending], closed[pending])
+                q, g, w, extras, new = self._pass(model, data, x, commanded[pending],
+                                                  offsets, sag[pending], closed[pending],
+                                                  None if wrench is None else wrench[pending])
                 closed[pending] = q
-                g, w = self._row_torques(model, data, q, tangent,
-                                         None if wrench is None else wrench[pending],
-                                         not self._lumped)
-                extras = self._extras(model, data, q)
-                new = self.deflection(x, self._state(x, q, g, w, extras))
                 step = new - sag[pending]
                 trail[k % 3, pending] = step
                 size = np.max(np.abs(step), axis=1)
                 done = size <= SAG_TOLERANCE
+                # a plain pass that does not shrink the step: Newton's steps from there on
+                grows = (k - start[pending] >= 1) & (size >= before[pending]) & ~done
+                before[pending] = size
                 sag[pending] = new
+                steps = (np.isfinite(newton[pending]) | grows) & ~done
+                if steps.any():
+                    at_k = pending[steps]
+                    start[at_k] = SAG_ITERATIONS  # no jump, no plain step to compare
+                    sag[at_k], newton[at_k] = self._newton_step(
+                        model, data, x, commanded[at_k], offsets, new[steps] - step[steps],
+                        step[steps], closed[at_k], None if wrench is None else wrench[at_k])
                 if done.any():
                     finished = pending[done]
+                    if np.any(newton[finished] <= 0.0):  # an unstable equilibrium
+                        raise ConvergenceError(SAG_BUCKLES)
                     at[finished], gravity[finished], applied[finished] = q[done], g[done], w[done]
                     final_step[finished] = step[done]
                     for f, e in extras.items():
@@ -559,8 +575,8 @@ class PoseModel:
                 ready = k - start[pending] >= 2 if k >= 2 else None  # three plain steps
                 if ready is not None and ready.any():
                     slow = pending[ready]
-                    jump, hopeless = _sag_jump(trail[:, slow][[k % 3, (k - 1) % 3, (k - 2) % 3]],
-                                               size[ready], SAG_ITERATIONS - 1 - k)
+                    jump, hopeless = sag_jump(trail[:, slow][[k % 3, (k - 1) % 3, (k - 2) % 3]],
+                                              size[ready], SAG_ITERATIONS - 1 - k, SAG_TOLERANCE)
                     sag[slow] += jump
                     start[slow[jump.any(axis=1)]] = k + 1
                     if hopeless.any():  # the plain passes would not converge in time
@@ -581,6 +597,41 @@ class PoseModel:
         extras = {f: e[:, None] for f, e in kept.items()}
         state = self._state(x, at, gravity[:, None], applied[:, None], extras)
         return sag, closed, state, final_step
+
+    def _pass(self, model: pin.Model, data: pin.Data, x: np.ndarray, commanded: np.ndarray,
+              offsets: np.ndarray, sag: np.ndarray, closed: np.ndarray,
+              wrench: np.ndarray | None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict, np.ndarray]:
+        """One pass of the sag, ``Phi(s) = C tau(q_c + delta_0 + s)``, over rows: the
+        configurations (n, nq; closed from the passive joints of ``closed``), gravity's and the
+        wrench's torques there (n, nv each), the families' extras and the new sag (n, nv)."""
+        q, tangent = self._configurations(model, data, commanded, offsets + sag, closed)
+        g, w = self._row_torques(model, data, q, tangent, wrench, not self._lumped)
+        extras = self._extras(model, data, q)
+        return q, g, w, extras, self.deflection(x, self._state(x, q, g, w, extras))
+
+    def _newton_step(self, model: pin.Model, data: pin.Data, x: np.ndarray,
+                     commanded: np.ndarray, offsets: np.ndarray, sag: np.ndarray,
+                     step: np.ndarray, closed: np.ndarray, wrench: np.ndarray | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """Newton's step on ``s - Phi(s) = 0`` for rows whose plain passes do not contract
+        (an eigenvalue of ``C K_C`` below -1: a load that stiffens the arm strongly):
+        ``s + (I - dPhi/ds)^-1 (Phi(s) - s)`` from the sags ``sag`` (p, nv) and their pass's
+        ``step`` (p, nv) ``Phi(s) - s``, the tangent by central differences of the pass
+        (:data:`SAG_DIFFERENCE`; every family and the loops' closures in it), and the lowest
+        real part of the tangent's eigenvalues (p,): positive at a stable equilibrium (for
+        linear springs, where ``K - K_C`` is positive definite)."""
+        p, nv = sag.shape
+        h = SAG_DIFFERENCE * np.eye(nv)
+        moved = np.concatenate([sag[:, None] + h, sag[:, None] - h]).reshape(2 * p * nv, nv)
+        new = self._pass(model, data, x, np.repeat(np.tile(commanded, (2, 1)), nv, axis=0),
+                         offsets, moved, np.repeat(np.tile(closed, (2, 1)), nv, axis=0),
+                         None if wrench is None else
+                         np.repeat(np.tile(wrench, (2, 1)), nv, axis=0))[-1]
+        plus, minus = new.reshape(2, p, nv, nv)
+        tangent = np.eye(nv) - np.swapaxes(plus - minus, 1, 2) / (2.0 * SAG_DIFFERENCE)
+        lowest = np.linalg.eigvals(tangent).real.min(axis=1)
+        return sag + np.linalg.solve(tangent, step[..., None])[..., 0], lowest
 
     def _configurations(self, model: pin.Model, data: pin.Data, commanded: np.ndarray,
                         shift: np.ndarray, seed: np.ndarray | None = None
@@ -656,45 +707,6 @@ class _Evaluation:
     to_measuring: np.ndarray
     translation: np.ndarray
     jacobian: bool
-
-
-def _sag_jump(steps: np.ndarray, size: np.ndarray, left: int) -> tuple[np.ndarray, np.ndarray]:
-    """Where the sag's plain passes contract at a steady ratio, the jump to their limit.
-
-    Parameters
-    ----------
-    steps
-        (3, p, nv) each pending row's last three plain steps ``s_0, s_1, s_2`` (rad, m; a
-        pass's new sag minus its start), newest first.
-    size
-        (p,) the largest component of the newest step.
-    left
-        Passes left in the attempt.
-
-    Returns
-    -------
-    jump : (p, nv)
-        Aitken's extrapolation ``s_0 r / (1 - r)`` to the limit of passes whose steps
-        ``s_2, s_1, s_0`` (newest last) shrink by the ratio ``r = s_0 . s_1 / |s_1|^2`` (a
-        dominant mode: ``s_1 . s_2 / |s_2|^2`` the same to :data:`SAG_STEADY_RATIO`), zero
-        elsewhere.
-    hopeless : (p,)
-        Rows whose plain passes, at that ratio, would not reach :data:`SAG_TOLERANCE` within
-        ``left`` more passes (or never: ``|r| >= 1``): the attempt fails there, as it did
-        before the jumps.
-    """
-    ratio, before = np.sum(steps[:2] * steps[1:], axis=2) / np.sum(steps[1:] ** 2, axis=2)
-    steady = np.abs(ratio - before) <= SAG_STEADY_RATIO * np.abs(ratio)  # no step is nil
-    jump, hopeless = np.zeros(steps.shape[1:]), np.zeros(len(size), dtype=bool)
-    if steady.any():
-        r = ratio[steady]
-        with np.errstate(divide="ignore"):  # a ratio of exactly zero: no pass needed
-            needed = np.log(SAG_TOLERANCE / size[steady]) / np.log(np.abs(r))
-        hopeless[steady] = (np.abs(r) >= 1.0) | (needed > left)
-        going = ~hopeless[steady]
-        jump[np.flatnonzero(steady)[going]] = (steps[0][steady][going]
-                                               * (r[going] / (1.0 - r[going]))[:, None])
-    return jump, hopeless
 
 
 def _check_combination(families: list[PoseFamily]) -> None:
