@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from stiffness.elastic.file_model import elastic_model_of
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_contents import ModelFile
 from stiffness.elastic.model_file import read_model_file
+from stiffness.elastic.undetermined_springs import rigid_springs, undetermined_labels
 from stiffness.errors import StiffnessError
 from stiffness.mechanics.defaults import default_coordinates, default_load, default_stiffness
 from stiffness.mechanics.formulation import FORMULATIONS, joint_stiffness
@@ -121,6 +122,9 @@ class KxInputs:
 
     ``*_source`` say where each input came from: a flag, the model file or the robot's default
     (``load_source`` keeps its historical values: ``--wrench``, ``wrench_SI``, ``rest_q_SI...``).
+    ``undetermined``: the springs of a model file's K_theta its campaign did not determine
+    (its ``undetermined_joints``), each with what the echo says instead of its value
+    (:func:`~stiffness.elastic.undetermined_springs.undetermined_labels`).
     """
 
     robot: Robot
@@ -133,6 +137,7 @@ class KxInputs:
     assembly: Assembly | None = None
     q_source: str = flags.FROM_FLAG
     k_theta_source: str = flags.FROM_FLAG
+    undetermined: dict[str, str] = field(default_factory=dict)
 
     @property
     def sources(self) -> dict[str, str]:
@@ -171,6 +176,9 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     if kq is None:
         raise flags.stiffness_required(robot)
     k_theta = joint_stiffness(kq, robot.n_compliant)
+    undetermined = {} if model is None or kq_source != f"{flags.FROM_MODEL} {args.model}" else (
+        undetermined_labels(model.undetermined_joints, rigid_springs(
+            model.compliant_joints, model.k_theta, model.ci95_low, model.ci95_high)))
     assembly = robot.assemble(coords)
     q = assembly.q
     if coords is None:
@@ -190,11 +198,14 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
         q_source = ("assembly found near the zero pose (no --q)" if assembly.assembly_search
                     else "zero pose (no --q)")
     return KxInputs(robot, coords, q, k_theta, load, source, cm, assembly, q_source=q_source,
-                    k_theta_source=kq_source)
+                    k_theta_source=kq_source, undetermined=undetermined)
 
 
 def inputs_summary(inputs: KxInputs) -> dict:
-    """The inputs as JSON: coordinates by name, load, K_theta and where each came from."""
+    """The inputs as JSON: coordinates by name, load, K_theta and where each came from;
+    ``K_theta_undetermined``: each spring of a model file its campaign did not determine
+    (rigid to it, or not loaded), with what the echo says of it; its ``K_theta_named`` value
+    is the file's, where the fit stopped, not a measurement."""
     robot = inputs.robot
     return {
         "coordinate_joints": list(robot.coordinate_joints),
@@ -203,6 +214,7 @@ def inputs_summary(inputs: KxInputs) -> dict:
         "K_theta_named": dict(zip(robot.compliant_joints, np.diag(inputs.k_theta).tolist(),
                                   strict=True)),
         "sources": inputs.sources,
+        "K_theta_undetermined": dict(inputs.undetermined),
     }
 
 
@@ -212,13 +224,15 @@ def echo_lines(summary: dict) -> list[str]:
     sources, load = summary["sources"], summary["load_named"]
     q = summary["q_named"]
     k = summary["K_theta_named"]
+    said = summary.get("K_theta_undetermined", {})
+    springs = ",".join(f"{n}={said[n]}" if n in said else flags.format_named([n], [v])
+                       for n, v in k.items())
     return [
         f"q [{sources['q']}] (rad, m prismatic): "
         f"{flags.format_named_summary(list(q), list(q.values()), list(k))}",
         f"wrench [{sources['wrench']}] (N, N.m; base axes): "
         f"{flags.format_named(list(load), list(load.values()))}",
-        f"K_theta [{sources['K_theta']}] (N.m/rad, N/m prismatic): "
-        f"{flags.format_named(list(k), list(k.values()))}",
+        f"K_theta [{sources['K_theta']}] (N.m/rad, N/m prismatic): {springs}",
     ]
 
 

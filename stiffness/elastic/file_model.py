@@ -12,7 +12,6 @@ equilibrium and :func:`fitted_deflection` include it). Formulas: docs/model-file
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -28,7 +27,7 @@ from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_contents import ModelFile, ModelFileError, ModelRobotError
 from stiffness.elastic.parameter_covariance import effect_labels, stiffness_labels
 from stiffness.elastic.stiffness_units import wrong_model_stiffness_unit
-from stiffness.elastic.undetermined_springs import undetermined_notes
+from stiffness.elastic.undetermined_springs import rigid_springs, undetermined_notes
 from stiffness.errors import (
     DataFileWarning,
     StiffnessError,
@@ -82,12 +81,8 @@ def elastic_model_of(model: ModelFile, frame: str | None = None,
         else:
             not_applied.append((e, reason))
     parts.check_joints()
-    n = len(model.compliant_joints)
-    lows, highs = (np.full(n, np.nan) if v is None else v
-                   for v in (model.ci95_low, model.ci95_high))
-    rigid = {j: (float(k), float(low)) for j, k, low, high in zip(
-        model.compliant_joints, model.k_theta, lows, highs, strict=True)
-        if math.isfinite(low) and not math.isfinite(high)}
+    rigid = rigid_springs(model.compliant_joints, model.k_theta, model.ci95_low,
+                          model.ci95_high)
     notes = undetermined_notes(model.undetermined_joints, model.extra.get("confounded_joints"),
                                rigid)
     for note in notes:  # older files: no confounded_joints

@@ -7,7 +7,10 @@ share and that its ``k_theta`` is where the fit left it, not a measurement.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
+
+import numpy as np
 
 from stiffness.elastic.effects.base import Parameter, confounded_note
 
@@ -55,3 +58,31 @@ def undetermined_notes(joints: Sequence[str], confounded: object,
                 "rests on it"]
                 if stiff else []) + [f"the stiffness of {j} is marked undetermined: {note}"
                                      for j, note in notes.items()]
+
+
+def rigid_springs(joints: Sequence[str], k_theta: np.ndarray, ci95_low: np.ndarray | None,
+                  ci95_high: np.ndarray | None) -> dict[str, tuple[float, float]]:
+    """Joint -> (the file's stiffness, its 95 % interval's lower end) of a model file's springs
+    whose interval has a finite lower end and no upper end (:func:`undetermined_notes`'s
+    ``rigid``): the campaign cannot tell them from rigid."""
+    lows, highs = (np.full(len(joints), np.nan) if v is None else v
+                   for v in (ci95_low, ci95_high))
+    return {j: (float(k), float(low)) for j, k, low, high in zip(
+        joints, k_theta, lows, highs, strict=True)
+        if math.isfinite(low) and not math.isfinite(high)}
+
+
+def undetermined_labels(joints: Sequence[str], rigid: Mapping[str, tuple[float, float]]
+                        ) -> dict[str, str]:
+    """What an echo of a model file's K_theta prints instead of the value of each of its
+    ``joints`` (its ``undetermined_joints``): ``rigid (held, not determined; stiffer than
+    8.88e+04 at 95 %)`` for one ``rigid`` to its campaign (:func:`rigid_springs`; no lower end
+    when the file has none), else ``undetermined (not a measurement)``. The value (where the fit
+    stopped, up to 3.9e19 at a compliance's zero bound) is never echoed as a stiffness."""
+    def said(joint: str) -> str:
+        if joint not in rigid:
+            return "undetermined (not a measurement)"
+        low = rigid[joint][1]
+        return ("rigid (held, not determined" + (f"; stiffer than {low:.3g} at 95 %)"
+                                                  if low > 0 else ")"))
+    return {j: said(j) for j in joints}
