@@ -550,18 +550,37 @@ def test_separation_is_what_refitting_leaves(pools):
 
 
 def test_design_on_a_parallel_robot_that_does_not_close_at_zero(tmp_path):
-    """The hexapod's loops do not close at zero leg lengths: the design's geometry takes the
-    robot's reference assembly, and a plan of reachable poses is written."""
+    """The hexapod without its shipped home pose (q_SI), so that its reference is the assembly
+    found near zero leg lengths (about 0.51 m; zero does not close), and with leg1 drawn over
+    0.5-0.95 m (a ``[workspace]`` rule), so that many draws do not assemble: the design's
+    geometry takes the reference assembly, its poses are drawn about it (not about zero), the
+    draws that do not assemble are refused, and a plan of poses that assemble from the
+    reference is written. (The shipped hexapod, closing at its q_SI and assembling every draw
+    of its box, passed with the reference put back at zero coordinates and with a sampler
+    keeping poses that do not assemble; this case fails both, and a sampling box about zero.)"""
     from stiffness.planning.plan import read_plan
+    from stiffness.robot.sources import robots_directory
 
+    shipped = robots_directory() / "hexapod"
+    text = (shipped / "robot.toml").read_text()
+    for name in ("hexapod.urdf", "hexapod.loops.yaml"):
+        text = text.replace(f'"{name}"', f'"{(shipped / name).as_posix()}"')
+    text = "\n".join(line for line in text.splitlines() if not line.startswith("q_SI"))
+    toml = tmp_path / "robot.toml"
+    toml.write_text(text + '\n[workspace]\nuniform = { leg1 = [0.5, 0.95] }\n')
+    robot = load_robot(str(toml))
+    with pytest.raises(StiffnessError):  # zero leg lengths do not close
+        robot.assemble(np.zeros(6), search=False)
     out = tmp_path / "plan.csv"
-    assert main(["design", "--robot", "hexapod", "--configs", "4", "--max-force", "200",
-                 "--out", str(out), "--quiet"]) == 0
-    robot = load_robot("hexapod")
+    assert main(["design", "--robot", str(toml), "--configs", "4", "--candidates", "12",
+                 "--random-plans", "1", "--max-force", "200", "--out", str(out), "--quiet"]) == 0
     plan, _ = read_plan(out, robot)
     assert plan.q.shape[0] >= 4
-    for q in plan.q:  # every planned pose assembles
-        assert robot.assemble(q).residual < 1e-9
+    reference = robot.coordinates_of(robot.assemble(None).q)
+    assert reference.min() > 0.4
+    for q in plan.q:  # every pose reached from the reference, near it
+        assert robot.assemble(q, search=False).residual < 1e-9
+        assert np.abs(q[1:] - reference[1:]).max() < 0.1
 
 
 def test_default_noise_is_echoed_once(tmp_path, capsys):
