@@ -231,6 +231,10 @@ class LoopClosure:
     constraint_datas: list
     passive_joints: tuple[str, ...]
     passive_v: np.ndarray = field(repr=False)
+    #: The constraints as one Pinocchio vector of generic constraints and of their datas, whose
+    #: entries ``constraints`` and ``constraint_datas`` are (None unless every pair is "3D"):
+    #: :meth:`jacobian` stacks their rows in one call.
+    stacked: tuple | None = field(default=None, repr=False)
 
     @classmethod
     def open_chain(cls) -> LoopClosure:
@@ -284,6 +288,8 @@ class LoopClosure:
 
     def _jacobian(self, model: pin.Model, data: pin.Data) -> np.ndarray:
         """:meth:`jacobian` from the constraint datas as :meth:`_calc` left them."""
+        if self.stacked is not None:
+            return pin.getConstraintsJacobian(model, data, *self.stacked)
         rows = []
         for pair, cm, cd in zip(self.pairs, self.constraints, self.constraint_datas,
                                 strict=True):
@@ -621,4 +627,14 @@ def build_loop_closure(model: pin.Model, declaration: LoopDeclaration,
     joints = [model.joints[model.getJointId(j)] for j in passive]
     passive_v = np.concatenate(
         [np.arange(j.idx_v, j.idx_v + j.nv) for j in joints] + [np.zeros(0)]).astype(int)
-    return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v)
+    stacked = None
+    if constraints and all(pair.kind == "3D" for pair in declaration.pairs):
+        stacked = (pin.StdVec_ConstraintModel(), pin.StdVec_ConstraintData())
+        for cm in constraints:
+            stacked[0].append(pin.ConstraintModel(cm))
+        for cm in stacked[0]:
+            stacked[1].append(cm.createData())
+        constraints = [cm.extract() for cm in stacked[0]]  # the vector's own, by reference
+        datas = [cd.extract() for cd in stacked[1]]
+    return LoopClosure(declaration.pairs, frame_ids, constraints, datas, passive, passive_v,
+                       stacked)
