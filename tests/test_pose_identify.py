@@ -96,3 +96,31 @@ def test_identify_command_on_a_pose_campaign(ur10, tmp_path, capsys):
     for flag in (["--formulation", "enhanced"], ["--method", "lm"], ["--starts", "3"]):
         assert main(["identify", str(folder), *flag]) != 0
         assert f"{flag[0]} takes deflection campaigns" in capsys.readouterr().err
+
+
+def test_a_spring_that_carries_a_merge_is_said_to_be_a_combination():
+    """UR5, two poses, three markers, springs 2e4 (shoulder lift) and 1.5e4 N.m/rad (elbow),
+    the rest rigid, 2 um noise, seed 0: the lift's compliance is merged into the frame and the
+    elbow's and wrist_1's springs. identify printed ``wrist_1_joint = 2578.8 +- 52.9 N.m/rad``,
+    a rigid joint's; its compliance is 1 / 2e4 times its merge coefficient (the lift's,
+    carried), checked here against the truth, and the line and JSON now say so."""
+    import stiffness
+
+    markers = [Marker("a", "tool0", np.array([0.0, 0.03, 0.05])),
+               Marker("b", "tool0", np.array([0.05, 0.0, 0.05])),
+               Marker("c", "tool0", np.array([0.0, -0.04, 0.08]))]
+    sim = stiffness.simulate_poses("ur5", markers, poses=2, effects=[
+        "joint_compliance:shoulder_lift_joint=2e4", "joint_compliance:elbow_joint=1.5e4"],
+        noise_std_m=2e-6, seed=0, payload=[0.0, 0.0, -100.0], frame="tool0")
+    result = identify(sim.campaign)
+    joints = {j["joint"]: j for j in result.to_dict()["joints"]}
+    wrist = joints["wrist_1_joint"]
+    carried = {m["parameter"]: m["coefficient"] for m in wrist["merged_with"]}
+    lift = carried["shoulder_lift_joint compliance"]
+    # the truth: wrist_1 rigid (compliance 0), wrist_2 rigid, so 1/k is the lift's share alone
+    assert 1.0 / wrist["k"] == pytest.approx(lift / 2e4, rel=0.05)
+    assert not wrist["determined"] and "wrist_1_joint" in result.to_dict()["undetermined_joints"]
+    assert {"elbow_joint", "wrist_1_joint"} <= set(result.merged_with())
+    line = next(s for s in result.format().splitlines() if "wrist_1_joint" in s)
+    assert "not its own stiffness" in line and f"{lift:.3g} x shoulder_lift_joint" in line, line
+    assert f"wrist_1_joint = {wrist['k']:.5g}" not in result.format()

@@ -21,6 +21,7 @@ SI inside (m, N, rad, N.m/rad, N/m).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -63,6 +64,24 @@ class PoseIdentification(IdentificationResult):
             out.append(replace(reciprocal(c, STIFFNESS_UNITS[c.unit]), name=joint))
         return out
 
+    def merged_with(self) -> dict[str, list[dict]]:
+        """Joint -> the parameters merged into its spring's compliance (``parameter``, its
+        label; ``coefficient``: the kept compliance absorbs that times the merged parameter,
+        :attr:`~stiffness.calibration.identifiability.Dropped.merged_into`), for each spring
+        that carries a merge: its fitted value is that combination, not its own stiffness.
+        Springs that carry none are left out."""
+        fit = self.diagnosis.final
+        labels = fit.labels()
+        out: dict[str, list[dict]] = {}
+        for joint in fit.model.springs:
+            column = labels.index(compliance_label(joint))
+            carried = [{"parameter": labels[d.index], "coefficient": c}
+                       for d in fit.identifiability.dropped if d.reason == "merged"
+                       for i, c in d.merged_into if i == column]
+            if carried:
+                out[joint] = carried
+        return out
+
     def write_model_file(self, path: Path) -> Path:
         """Write the pose model file of the fit atomically (:meth:`PoseDiagnosis.write_model`);
         returns its path."""
@@ -73,8 +92,12 @@ class PoseIdentification(IdentificationResult):
         deflection identification where they mean the same (``joints`` with ``k``,
         ``unit``, ``standard_error``, ``ci95``, ``relative_ci_width``, ``determined``), and
         the pose fit's (``families``, ``parameters``, ``gof_p``, ``unexplained``, and
-        ``final_rows_excluded``: the poses its test left out, a robust loss's)."""
+        ``final_rows_excluded``: the poses its test left out, a robust loss's). A spring
+        whose compliance carries merged parameters has ``merged_with`` (:meth:`merged_with`,
+        the form of ``identifiability.dropped[].merged_into``): its ``k`` is that
+        combination's, not the joint's stiffness, so it is not ``determined``."""
         d, fit = self.diagnosis, self.diagnosis.final
+        merged = self.merged_with()
         return jsonable({
             "kind": "poses", "campaign": d.campaign.name,
             "robot": {"name": d.campaign.robot.title,
@@ -83,10 +106,13 @@ class PoseIdentification(IdentificationResult):
             "joints": [{"joint": p.name, "k": p.value, "unit": p.unit,
                         "standard_error": p.standard_error, "ci95": list(p.ci95),
                         "relative_ci_width": (p.ci95[1] - p.ci95[0]) / p.value,
-                        "determined": p.determined, "at_bound": p.at_bound,
-                        "held": p.held or None}
+                        "determined": p.determined and p.name not in merged,
+                        "at_bound": p.at_bound,
+                        "held": p.held or None,
+                        **({"merged_with": merged[p.name]} if p.name in merged else {})}
                        for p in self.stiffnesses],
-            "undetermined_joints": [p.name for p in self.stiffnesses if not p.determined],
+            "undetermined_joints": [p.name for p in self.stiffnesses
+                                    if not p.determined or p.name in merged],
             "sigma_m": fit.sigma, "sigma_source": fit.sigma_source, "rms_m": fit.rms(),
             "gof_p": d.gof(), "unexplained": d.unexplained,
             "final_rows_excluded": d.final_terms.excluded,
@@ -112,7 +138,9 @@ class PoseIdentification(IdentificationResult):
         elif d.unexplained:
             lines.append("NOT TO BE TRUSTED: the model does not explain the poses (verdict "
                          "below); these stiffnesses take what it misses")
-        lines += [f"  {p.text()}" for p in self.stiffnesses]
+        merged = self.merged_with()
+        lines += [f"  {_carrying(p, merged[p.name]) if p.name in merged else p.text()}"
+                  for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
                       f"({fit.sigma_source}); "
                   + verdict_line({**d.verdict_keys(), "searched": False})]
@@ -123,6 +151,16 @@ class PoseIdentification(IdentificationResult):
                          f"are too narrow; run stiffness diagnose {where} to find it")
         lines += describe_outliers(d.outliers)
         return "\n".join(lines)
+
+
+def _carrying(p: Parameter, merged: list[dict]) -> str:
+    """The line of a spring ``p`` whose compliance carries ``merged`` parameters
+    (:meth:`PoseIdentification.merged_with`): its value is said as the combination it is."""
+    names = ", ".join(f"{m['coefficient']:.3g} x {m['parameter']}" for m in merged)
+    value = "rigid" if math.isinf(p.value) else f"{p.value:.5g} {p.unit}"
+    return (f"{p.name}: not its own stiffness: its compliance carries merged parameters "
+            f"({names}, SI units), so the fitted {value} is 1 / (its compliance + that "
+            "combination), a combination the data do not split")
 
 
 def identify_poses(campaign: PoseCampaign, loss: str = "linear",
