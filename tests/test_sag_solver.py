@@ -194,3 +194,26 @@ def test_a_buckling_load_is_still_refused(soft_ur5, push, says):
     with pytest.raises(ConvergenceError, match=says) as info:
         model.evaluate(x, [model.row_terms(q, w)], False)
     assert "\n" not in str(info.value)
+
+
+def test_a_load_that_stiffens_a_loop_sags_to_the_newton_equilibrium():
+    """The SK120 without gravity, its springs 1000 times softer, 387 N pulling the tool
+    (C K_C's lowest eigenvalue -0.96 at the equilibrium, deflections of 0.47 rad; the plain
+    passes from zero overshoot and grow): Newton's steps, started again from where the sag
+    started and with the parallelogram closed at each pass, reach solve_equilibrium's
+    equilibrium to 1e-10 m (measured 4.3e-12 m, that solver's closure; from the diverged
+    passes they reached another stable equilibrium 0.95 m away)."""
+    robot = load_robot("sk120")
+    robot.model.gravity = pin.Motion.Zero()
+    q = robot.configuration(np.deg2rad(robot.defaults["q_deg"]))
+    k = 1e-3 * np.asarray(robot.defaults["k_theta_SI"], dtype=float)
+    w = np.r_[387.46 * np.array([-0.8022655, -0.47192134, 0.36559583]), 0.0, 0.0, 0.0]
+    model = PoseModel(robot, [Marker("tool", TARGET_FRAME)], ("joint_compliance",),
+                      (np.eye(3), np.zeros(3)), Loads(TARGET_FRAME, np.zeros((0, 6))))
+    labels = [p.label for p in model.parameters]
+    x = np.zeros(model.size)
+    x[[labels.index(compliance_label(j)) for j in robot.compliant_joints]] = 1.0 / k
+    eq = solve_equilibrium(robot, q, np.diag(k), w)
+    assert np.abs(eq.dtheta).max() > 0.4
+    y = model.evaluate(x, [model.row_terms(q, w)], False)[0][0, 0]
+    np.testing.assert_allclose(y, _tool(robot, eq.q), rtol=0, atol=1e-10)

@@ -477,8 +477,9 @@ class PoseModel:
         there; the verdict stays the plain passes': an attempt fails where they would need
         more than :data:`SAG_ITERATIONS`. A row whose plain step does not shrink (a load that
         stiffens the arm strongly: an eigenvalue of ``C K_C`` below -1, the passes oscillate
-        and grow though ``K - K_C`` is positive definite) takes Newton's steps from there
-        (:meth:`_newton_step`), each after a pass that judges convergence as before; an
+        and grow though ``K - K_C`` is positive definite) takes Newton's steps from where its
+        attempt started (:meth:`_newton_step`; from the diverged passes they can reach
+        another equilibrium), each after a pass that judges convergence as before; an
         equilibrium they reach that is unstable is refused (:data:`SAG_BUCKLES`)."""
         commanded = np.array([row.q_full for row in rows]).reshape(len(rows), model.nq)
         offsets = self._offsets(x)
@@ -539,6 +540,7 @@ class PoseModel:
             trail = np.zeros((3, n, nv))  # each row's steps of the last three passes
             start = np.zeros(n, dtype=int)  # the pass its plain steps start at (its jump)
             before = np.full(n, np.inf)  # each row's last step (its largest component)
+            origin = sag.copy()  # where the attempt starts
             newton = np.full(n, np.inf)  # lowest eigenvalue of a Newton row's last I - dPhi/ds
             failed = np.zeros(0, dtype=int)
             for k in range(SAG_ITERATIONS):
@@ -556,13 +558,16 @@ class PoseModel:
                 grows = (k - start[pending] >= 1) & (size >= before[pending]) & ~done
                 before[pending] = size
                 sag[pending] = new
-                steps = (np.isfinite(newton[pending]) | grows) & ~done
+                steps = np.isfinite(newton[pending]) & ~done
                 if steps.any():
                     at_k = pending[steps]
-                    start[at_k] = SAG_ITERATIONS  # no jump, no plain step to compare
                     sag[at_k], newton[at_k] = self._newton_step(
                         model, data, x, commanded[at_k], offsets, new[steps] - step[steps],
                         step[steps], closed[at_k], None if wrench is None else wrench[at_k])
+                if grows.any():  # Newton's steps from the attempt's start (not from afar)
+                    back = pending[grows]
+                    sag[back], closed[back], newton[back] = origin[back], commanded[back], 1.0
+                    start[back] = SAG_ITERATIONS  # no jump, no plain step to compare
                 if done.any():
                     finished = pending[done]
                     if np.any(newton[finished] <= 0.0):  # an unstable equilibrium
