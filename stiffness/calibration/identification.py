@@ -164,6 +164,11 @@ class Identification(IdentificationResult):
     physical_scale
         Per joint, its 95 % interval against its physical scale in words (diagnose's
         ``physical_scale``; empty: not judged), JSON ``joints[].physical_scale``.
+    conditional_on
+        Per joint, the springs rigid to the data (at their bound) its estimate and interval
+        are conditional on (held there), JSON ``joints[].conditional_on``; empty: none. With
+        no residual freedom (residual components no more than fitted stiffnesses) such a
+        joint is undetermined, as diagnose refuses that campaign (docs/diagnose.md).
     fits_to_noise
         The test of fitting to a known noise (declared, or the replicates'), JSON
         ``fits_to_noise``: its ``p_value``, ``level``, ``test`` and ``final_rows_excluded``
@@ -255,6 +260,7 @@ class Identification(IdentificationResult):
     ci95_dof: tuple[float | None, ...] = ()
     physical_scale: tuple[str, ...] = ()
     fits_to_noise: dict | None = None
+    conditional_on: tuple[tuple[str, ...], ...] = ()
 
     @property
     def sigma_m(self) -> float:
@@ -322,13 +328,15 @@ class Identification(IdentificationResult):
                  "paper_unit": _paper_unit(u)[0], "standard_error": float(se),
                  "ci95": [float(lo), float(hi)], "relative_ci_width": float(w),
                  "determined": j not in self.undetermined_joints, "held": h, "at_bound": b,
-                 "physical_scale": s or None, "ci95_dof": dof}
-                for j, k, u, kp, se, lo, hi, w, h, b, s, dof in zip(
+                 "physical_scale": s or None, "ci95_dof": dof,
+                 "conditional_on": list(c)}
+                for j, k, u, kp, se, lo, hi, w, h, b, s, dof, c in zip(
                     self.joints, self.k, self.units, self.k_paper_units, self.standard_error,
                     self.ci95_low, self.ci95_high, self.relative_ci_width, self.held_joints,
                     self.at_bound or (False,) * len(self.joints),
                     self.physical_scale or ("",) * len(self.joints),
-                    self.ci95_dof or (None,) * len(self.joints), strict=True)
+                    self.ci95_dof or (None,) * len(self.joints),
+                    self.conditional_on or ((),) * len(self.joints), strict=True)
             ],
             "ci95_method": self.ci95_method,
             "kinematics_bias_se": None if self.kinematics_bias_se is None else [

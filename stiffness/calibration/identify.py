@@ -110,6 +110,7 @@ from stiffness.calibration.pose_identify import PoseIdentification, identify_pos
 from stiffness.calibration.selection import (
     Noise,
     above_noise,
+    held_ends,
     noise_terms,
 )
 from stiffness.calibration.sign_checks import flipped_column_note
@@ -368,7 +369,16 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     outliers, flag_sigma = _outliers(best_fit, measured, campaign, fitted, notes)
     judged = stiffness_parameters(_judging(best_fit, campaign), cov.matrix,
                                   intervals.two_sided(), intervals.one_sided())
-    undetermined = tuple(p.name for p in judged if not p.determined)
+    conditional = _conditional(cov.matrix, rigid, rob.compliant_joints)
+    scale = [p.scale_note for p in judged]
+    if n_res <= fitted:  # nothing left to test the bound with: as diagnose, undetermined
+        for j, names in enumerate(conditional):
+            if names and judged[j].determined:
+                scale[j] = (f"conditional on {', '.join(names)} held at its bound, with "
+                            f"{n_res} residual components for {fitted} stiffnesses (no "
+                            "residual freedom to test that bound)")
+    undetermined = tuple(p.name for j, p in enumerate(judged)
+                         if not p.determined or (conditional[j] and n_res <= fitted))
     determined = np.array([j not in undetermined for j in rob.compliant_joints])
     starts_agree, methods_agree = _agreement(runs, best, determined, method, notes)
     return Identification(
@@ -412,7 +422,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         at_bound=tuple(bool(r) for r in rigid),
         kinematics_bias_se=bias,
         ci95_dof=tuple(intervals.reported_dof),
-        physical_scale=tuple(p.scale_note for p in judged),
+        physical_scale=tuple(scale),
+        conditional_on=conditional,
         fits_to_noise=level.fits_to_noise,
     )
 
@@ -518,6 +529,23 @@ def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: np.ndarray,
         unc.se_log[rigid] = np.inf
         unc.width[rigid] = np.inf
     return rigid
+
+
+def _conditional(cov: np.ndarray, rigid: np.ndarray, joints: tuple[str, ...]
+                 ) -> tuple[tuple[str, ...], ...]:
+    """Per joint, the springs rigid to the data (``rigid``, at their bound) its estimate and
+    interval are conditional on: those an end of its interval holds
+    (:func:`~stiffness.calibration.selection.held_ends`, the rule of both campaign kinds: its
+    covariance with them, none held, not zero); none for a rigid one itself."""
+    bound = np.flatnonzero(rigid)
+    out = []
+    for j in range(len(joints)):
+        if rigid[j] or not bound.size or not np.isfinite(cov[j, j]):
+            out.append(())
+            continue
+        low, high = held_ends(cov[j, bound])
+        out.append(tuple(joints[b] for b in bound[low | high]))
+    return tuple(out)
 
 
 def _held(fit: Fit) -> tuple[str | None, ...]:

@@ -114,7 +114,8 @@ def format_table(result: Identification) -> str:
             _g(result.k_paper_units[j]),
             _g(result.standard_error[j], 3),
             f"[{_g(result.ci95_low[j])}, {_g(result.ci95_high[j])}]",
-            "",
+            (f"conditional on {', '.join(result.conditional_on[j])} held at its bound"
+             if result.conditional_on and result.conditional_on[j] else ""),
         ))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]))]
     lines = [
