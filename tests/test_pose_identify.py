@@ -124,3 +124,24 @@ def test_a_spring_that_carries_a_merge_is_said_to_be_a_combination():
     line = next(s for s in result.format().splitlines() if "wrist_1_joint" in s)
     assert "not its own stiffness" in line and f"{lift:.3g} x shoulder_lift_joint" in line, line
     assert f"wrist_1_joint = {wrist['k']:.5g}" not in result.format()
+
+
+def test_a_pose_spring_fitted_beside_a_bound_one_says_it_is_conditional_on_it():
+    """UR10, 30 poses of two markers, the shoulder lift rigid (seed 3 of
+    ``ur10_rigid_lift_campaign``): its compliance sits at 0 and the other springs' estimates
+    and intervals are conditional on it held there (issue 35, as a deflection
+    identification's ``conditional_on``); with residual freedom left they stay determined.
+    With none (components no more than parameters) the line says undetermined."""
+    from pose_campaigns import ur10_rigid_lift_campaign
+
+    from stiffness.calibration.pose_identify import _conditional
+
+    result = identify(ur10_rigid_lift_campaign())
+    joints = {j["joint"]: j for j in result.to_dict()["joints"]}
+    assert joints["shoulder_lift_joint"]["at_bound"]
+    assert joints["elbow_joint"]["conditional_on"] == ["shoulder_lift_joint"]
+    assert joints["elbow_joint"]["determined"] and not result.no_freedom()
+    line = next(s for s in result.format().splitlines() if "elbow_joint" in s)
+    assert line.endswith("(conditional on shoulder_lift_joint held at its bound)"), line
+    assert _conditional(["elbow_joint"], 15, 15).startswith(
+        "; undetermined: conditional on elbow_joint held at its bound, with 15 measured")

@@ -34,6 +34,7 @@ from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_parameters import SPRINGS
 from stiffness.calibration.result import IdentificationResult
+from stiffness.calibration.selection import held_ends
 from stiffness.elastic.effects.base import Parameter, reciprocal
 from stiffness.elastic.effects.pose_face import compliance_label
 from stiffness.files import jsonable
@@ -82,6 +83,36 @@ class PoseIdentification(IdentificationResult):
                 out[joint] = carried
         return out
 
+    def conditional_on(self) -> dict[str, list[str]]:
+        """Joint -> the parameters at their physical bound (a rigid spring's compliance at 0:
+        its joint's name; else its label) its spring's estimate and interval are conditional
+        on, held there: those an end of its interval holds
+        (:func:`~stiffness.calibration.selection.held_ends`, the rule of both campaign kinds:
+        its covariance with them, none held, not zero). Springs conditional on none, at their
+        bound or not fitted are left out."""
+        fit = self.diagnosis.final
+        labels, kept = fit.labels(), list(fit.identifiability.kept)
+        joints = {compliance_label(j): j for j in fit.model.springs}
+        bound = [kept.index(i) for i in fit.at_bound if i in kept]
+        out: dict[str, list[str]] = {}
+        for joint in fit.model.springs:
+            column = labels.index(compliance_label(joint))
+            if not bound or column not in kept or column in fit.at_bound:
+                continue
+            low, high = held_ends(fit.covariance[kept.index(column), bound])
+            names = [joints.get(labels[kept[b]], labels[kept[b]])
+                     for b, on in zip(bound, low | high, strict=True) if on]
+            if names:
+                out[joint] = names
+        return out
+
+    def no_freedom(self) -> bool:
+        """Whether the fit has no residual freedom (measured components no more than fitted
+        parameters, which diagnose refuses): nothing in the data tests a bound it holds a
+        spring's estimate on, so such a spring is undetermined (:meth:`conditional_on`)."""
+        fit = self.diagnosis.final
+        return fit.n_observed <= fit.n_fitted
+
     def write_model_file(self, path: Path) -> Path:
         """Write the pose model file of the fit atomically (:meth:`PoseDiagnosis.write_model`);
         returns its path."""
@@ -98,6 +129,8 @@ class PoseIdentification(IdentificationResult):
         combination's, not the joint's stiffness, so it is not ``determined``."""
         d, fit = self.diagnosis, self.diagnosis.final
         merged = self.merged_with()
+        conditional = self.conditional_on()
+        unsure = set(merged) | (set(conditional) if self.no_freedom() else set())
         return jsonable({
             "kind": "poses", "campaign": d.campaign.name,
             "robot": {"name": d.campaign.robot.title,
@@ -106,13 +139,14 @@ class PoseIdentification(IdentificationResult):
             "joints": [{"joint": p.name, "k": p.value, "unit": p.unit,
                         "standard_error": p.standard_error, "ci95": list(p.ci95),
                         "relative_ci_width": (p.ci95[1] - p.ci95[0]) / p.value,
-                        "determined": p.determined and p.name not in merged,
+                        "determined": p.determined and p.name not in unsure,
+                        "conditional_on": conditional.get(p.name, []),
                         "at_bound": p.at_bound,
                         "held": p.held or None,
                         **({"merged_with": merged[p.name]} if p.name in merged else {})}
                        for p in self.stiffnesses],
             "undetermined_joints": [p.name for p in self.stiffnesses
-                                    if not p.determined or p.name in merged],
+                                    if not p.determined or p.name in unsure],
             "sigma_m": fit.sigma, "sigma_source": fit.sigma_source, "rms_m": fit.rms(),
             "gof_p": d.gof(), "unexplained": d.unexplained,
             "final_rows_excluded": d.final_terms.excluded,
@@ -138,9 +172,10 @@ class PoseIdentification(IdentificationResult):
         elif d.unexplained:
             lines.append("NOT TO BE TRUSTED: the model does not explain the poses (verdict "
                          "below); these stiffnesses take what it misses")
-        merged = self.merged_with()
+        merged, conditional = self.merged_with(), self.conditional_on()
         lines += [f"  {_carrying(p, merged[p.name]) if p.name in merged else p.text()}"
-                  for p in self.stiffnesses]
+                  + (_conditional(conditional[p.name], fit.n_observed, fit.n_fitted)
+                     if p.name in conditional else "") for p in self.stiffnesses]
         lines += ["", f"RMS {fit.rms():.4g} m per component; sigma {fit.sigma:.4g} m "
                       f"({fit.sigma_source}); "
                   + verdict_line({**d.verdict_keys(), "searched": False})]
@@ -161,6 +196,17 @@ def _carrying(p: Parameter, merged: list[dict]) -> str:
     return (f"{p.name}: not its own stiffness: its compliance carries merged parameters "
             f"({names}, SI units), so the fitted {value} is 1 / (its compliance + that "
             "combination), a combination the data do not split")
+
+
+def _conditional(names: list[str], observed: int, fitted: int) -> str:
+    """What a spring's line adds when its estimate is conditional on ``names`` held at their
+    bound (:meth:`PoseIdentification.conditional_on`): undetermined with no residual
+    freedom (``observed`` components no more than ``fitted`` parameters)."""
+    said = f"conditional on {', '.join(names)} held at its bound"
+    if observed <= fitted:
+        return (f"; undetermined: {said}, with {observed} measured components for {fitted} "
+                "parameters (no residual freedom to test that bound)")
+    return f" ({said})"
 
 
 def identify_poses(campaign: PoseCampaign, loss: str = "linear",
