@@ -38,7 +38,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from numpy.linalg import _umath_linalg  # the kernel of np.linalg.lstsq
 
 from stiffness.errors import (
     LoopClosureError,
@@ -496,7 +495,7 @@ class LoopClosure:
             if math.sqrt(c.dot(c)) < CLOSURE_TOLERANCE_M:  # np.linalg.norm's arithmetic
                 return q
             cp = self._jacobian(model, data)[:, self.passive_v]
-            step = _least_squares(cp, -c)
+            step = np.linalg.lstsq(cp, -c, rcond=1e-10)[0]
             norm = math.sqrt(step.dot(step))
             if norm > MAX_STEP:
                 step *= MAX_STEP / norm
@@ -512,28 +511,6 @@ class LoopClosure:
             f"the kinematic loop does not close at {name} (residual {np.linalg.norm(c):.3g} m "
             f"after {max_iterations} iterations): the configuration is out of the loop's reach; "
             "check the joint values and their units", loop=name, residual=worst)
-
-
-def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.lstsq(a, b, rcond=1e-10)[0]`` (minimum-norm least squares, LAPACK's gelsd)
-    of a real (m, n) ``a`` and (m,) ``b``, bit for bit: the same kernel, called without the
-    wrapper's checks and conversions, a quarter of the time of an 18 x 18 solve (the
-    hexapod's closure step).
-
-    Raises
-    ------
-    numpy.linalg.LinAlgError
-        If the SVD does not converge (as ``np.linalg.lstsq``).
-    """
-    with np.errstate(call=_svd_failed, invalid="call", over="ignore", divide="ignore",
-                     under="ignore"):
-        x = _umath_linalg.lstsq(a, b[:, np.newaxis], 1e-10, signature="ddd->ddid")[0]
-    return x[:, 0].copy()
-
-
-def _svd_failed(err: object, flag: int) -> None:
-    """The error handler of :func:`_least_squares` (numpy's own for ``lstsq``)."""
-    raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
 
 
 @functools.cache
