@@ -30,6 +30,7 @@ PACKAGE = Path(stiffness.__file__).resolve().parent
 #: Layer of each top-level part of the package, lowest first (see docs/architecture.md).
 LAYERS = {
     "errors": 0, "files": 0, "cores": 0, "robots": 0, "htmlpage": 0, "provenance": 0,
+    "figures": 0,
     "units": 0,
     "robot": 1,
     "mechanics": 2,

@@ -223,7 +223,7 @@ def test_plot_labels_are_words_with_units(monkeypatch, summary):
     from stiffness.papers import figures
 
     drawn = []
-    monkeypatch.setattr(figures, "_png", lambda fig: drawn.append(fig) or b"")
+    monkeypatch.setattr(figures, "png", lambda fig, dpi: drawn.append(fig) or b"")
     figures.table2_comparison(summary["table2"])
     figures.table3_work_per_load(summary["table3"], summary["table3_corrupt_rows"])
     for fig in drawn:

@@ -7,8 +7,6 @@ with the house template (:mod:`stiffness.htmlpage`)."""
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 
 from stiffness.calibration.certainty import how_sure_table
@@ -17,6 +15,7 @@ from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.steps_table import stage_section, steps_table
 from stiffness.calibration.validation_page import validation_section
+from stiffness.figures import png
 from stiffness.htmlpage import (
     contents,
     esc,
@@ -83,11 +82,10 @@ def stage_plot(d: dict) -> bytes | None:
     ax.set_title("mean ± std (bars), max (dots) after each step", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3, axis="y")
-    buf = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=100)
+    image = png(fig, dpi=100)
     plt.close(fig)
-    return buf.getvalue()
+    return image
 
 
 def _residuals(d: dict, residual_pngs: dict[str, bytes] | None) -> list[str]:
@@ -106,8 +104,8 @@ def _residuals(d: dict, residual_pngs: dict[str, bytes] | None) -> list[str]:
                            ["axis", f"slope ({unit} per row)", "correlation with the row"],
                            trend, "A drift in time (temperature, tracker) shows as a strong "
                            "correlation."))
-    for name, png in (residual_pngs or {}).items():
-        parts.append(figure(f"residuals-{name}.png", png,
+    for name, image in (residual_pngs or {}).items():
+        parts.append(figure(f"residuals-{name}.png", image,
                             f"Marker {name}: residual x, y, z ({unit}) per row, before (the "
                             "tracker placement and marker offsets only) and after (the final "
                             "model)"))

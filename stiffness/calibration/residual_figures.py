@@ -8,11 +8,10 @@ One drawing for both campaign kinds: a deflection campaign's tool deflection
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 
 from stiffness.calibration.breakdown import finite_rms
+from stiffness.figures import png
 
 
 def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None, unit: str,
@@ -59,6 +58,4 @@ def residual_axes_png(before: np.ndarray, after: np.ndarray, sigma: float | None
         axes[0, 1].legend(fontsize=8, loc="upper right")
     fig.suptitle(title, fontsize=9)
     fig.subplots_adjust(left=0.09, right=0.99, top=0.92, bottom=0.07, hspace=0.1, wspace=0.3)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    return buf.getvalue()
+    return png(fig, dpi=100)

@@ -52,6 +52,7 @@ import numpy as np
 from stiffness.elastic.model import ElasticModel
 from stiffness.elastic.model_file import load_model
 from stiffness.errors import StiffnessError
+from stiffness.figures import png
 from stiffness.files import atomic_write, number_text
 from stiffness.machining.branches import (
     Layer,
@@ -230,10 +231,9 @@ class PostureResult:
         ax2.set_xlabel("path point")
         ax2.grid(alpha=0.3)
         fig.tight_layout()
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=110)
+        image = png(fig, dpi=110)
         plt.close(fig)
-        return buf.getvalue()
+        return image
 
     def write(self, out: str | os.PathLike | None, figure: str | os.PathLike | None = None
               ) -> list[Path]:

@@ -2,37 +2,19 @@
 
 Figures are built with :class:`matplotlib.figure.Figure` directly, not through pyplot: no
 global figure manager, no backend to select, nothing to close. Their margins are fixed in
-inches (:func:`_margins`: text has a fixed size in points) instead of a layout engine's, which
-cost 40 % of their drawing time.
+inches (:func:`stiffness.figures.margins`: text has a fixed size in points) instead of a
+layout engine's, which cost 40 % of their drawing time.
 """
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 from matplotlib.figure import Figure
 
+from stiffness.figures import margins, png
 from stiffness.mechanics.equilibrium import Departure
 from stiffness.papers.reproduction import row_labels
 from stiffness.workspace.definiteness import DefinitenessScan
-
-
-def _margins(fig: Figure, left: float, right: float, bottom: float, top: float,
-             wspace: float = 0.25, hspace: float = 0.25) -> None:
-    """Subplot margins of ``fig`` in inches (left, right, bottom, top), and the gaps between
-    subplots as fractions of their mean width (``wspace``) and height (``hspace``)."""
-    width, height = fig.get_size_inches()
-    fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
-                        top=1.0 - top / height, wspace=wspace, hspace=hspace)
-
-
-def _png(fig: Figure) -> bytes:
-    """PNG of ``fig`` at its own size (its margins already fit its text: no tight-bbox pass
-    to crop it)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    return buf.getvalue()
 
 
 def force_deflection(rows: list[dict]) -> bytes:
@@ -50,7 +32,7 @@ def force_deflection(rows: list[dict]) -> bytes:
     configs = list(dict.fromkeys(r["config"] for r in rows))
     fig = Figure(figsize=(4.6 * len(configs), 4.2))
     axes = fig.subplots(1, len(configs), squeeze=False, sharey=True)
-    _margins(fig, 0.75, 0.15, 1.0, 0.55, wspace=0.08)
+    margins(fig, 0.75, 0.15, 1.0, 0.55, wspace=0.08, hspace=0.25)
     for ax, config in zip(axes[0], configs, strict=True):
         mine = [r for r in rows if r["config"] == config]
         force = np.array([r["force_N"] for r in mine])
@@ -67,7 +49,7 @@ def force_deflection(rows: list[dict]) -> bytes:
     axes[0][0].set_ylabel("|model - measured| deflection (mm)")
     fig.legend(*axes[0][0].get_legend_handles_labels(), loc="lower center", ncol=4,
                fontsize=9, bbox_to_anchor=(0.5, 0.01))
-    return _png(fig)
+    return png(fig, dpi=110)
 
 
 def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
@@ -86,7 +68,7 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
     q3_axis, q3_index = np.unique(np.round(q_deg[keep, 2], 6), return_inverse=True)
     fig = Figure(figsize=(13, 10))
     axes = fig.subplots(3, 3, sharex=True, sharey=True)
-    _margins(fig, 0.75, 0.85, 0.55, 0.7, wspace=0.3, hspace=0.25)
+    margins(fig, 0.75, 0.85, 0.55, 0.7, wspace=0.3, hspace=0.25)
     floor = 1e-3 * float(np.max(np.abs(diag[keep])))  # below: numerically zero
     for i in range(3):
         for k in range(3):
@@ -106,14 +88,14 @@ def partial_derivative_maps(scan: DefinitenessScan) -> bytes:
                 ax.set_xlabel("joint angle q3 (deg)")
     fig.suptitle(f"Parts of the diagonal of K_C per newton of load along x, y, z "
                  f"(q1 = {q1:.1f} deg, wrist vertical)", fontsize=11)
-    return _png(fig)
+    return png(fig, dpi=110)
 
 
 def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     """Error of the linear predictions against the exact equilibrium, log-log in the load."""
     fig = Figure(figsize=(11, 4))
     ax1, ax2 = fig.subplots(1, 2)
-    _margins(fig, 0.75, 0.15, 0.55, 0.15, wspace=0.25)
+    margins(fig, 0.75, 0.15, 0.55, 0.15, wspace=0.25, hspace=0.25)
     force = departure.scales * reference_force_N
     for pred, name, style in ((departure.conventional, "conventional", "o-"),
                               (departure.enhanced, "enhanced", "s-")):
@@ -134,7 +116,7 @@ def linear_vs_exact(departure: Departure, reference_force_N: float) -> bytes:
     ax2.set_ylabel("deflection magnitude (mm)")
     ax2.legend()
     ax2.grid(alpha=0.3, which="both")
-    return _png(fig)
+    return png(fig, dpi=110)
 
 
 #: Colour of the map cells without a value.
@@ -151,7 +133,7 @@ def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.nd
 
     fig = Figure(figsize=(12, 4.5))
     ax1, ax2 = fig.subplots(1, 2)
-    _margins(fig, 0.75, 0.85, 0.55, 0.35, wspace=0.35)
+    margins(fig, 0.75, 0.85, 0.55, 0.35, wspace=0.35, hspace=0.25)
     panels = ((ax1, minimum * 1e-3, "viridis", "smallest principal stiffness (N/mm)",
                "conventional stiffness (eq. 8), q1 = 0, wrist vertical"),
               (ax2, ratio, "coolwarm", "smallest principal stiffness, enhanced / conventional",
@@ -171,7 +153,7 @@ def stiffness_map(theta2_deg: np.ndarray, theta3_deg: np.ndarray, minimum: np.nd
                                      label=f"no value ({missing} cells): flat parallelogram "
                                            "or singular stiffness")],
                       loc="lower left", fontsize=7, framealpha=0.9)
-    return _png(fig)
+    return png(fig, dpi=110)
 
 
 def table2_comparison(rows: list[dict]) -> bytes:
@@ -184,7 +166,7 @@ def table2_comparison(rows: list[dict]) -> bytes:
               ("conventional_mm", "ours, conventional (eq. 8)", "x"))
     fig = Figure(figsize=(14, 4.6))
     axes = fig.subplots(1, 3)
-    _margins(fig, 0.75, 0.15, 1.05, 0.15, wspace=0.25)
+    margins(fig, 0.75, 0.15, 1.05, 0.15, wspace=0.25, hspace=0.25)
     for a, ax in enumerate(axes):
         for key, label, style in series:
             ax.plot(x, [r[key][a] for r in rows], style, label=label, alpha=0.85,
@@ -195,7 +177,7 @@ def table2_comparison(rows: list[dict]) -> bytes:
         ax.grid(alpha=0.3)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize=9,
                bbox_to_anchor=(0.5, 0.01))
-    return _png(fig)
+    return png(fig, dpi=110)
 
 
 def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
@@ -208,7 +190,7 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     fig = Figure(figsize=(11, 4.6))
     ax = fig.subplots()
     rows_of_legend = -(-(2 + len(corrupt)) // 3)
-    _margins(fig, 0.75, 0.15, 0.65 + 0.25 * rows_of_legend, 0.15)
+    margins(fig, 0.75, 0.15, 0.65 + 0.25 * rows_of_legend, 0.15, wspace=0.25, hspace=0.25)
     ax.plot(x, ratio, "o", label=r"printed eq. 14 work / $|F|^2$ (printed unit per N$^2$)")
     ax.plot(x, ours, "x",
             label=r"ours: eq. 14 from the enhanced deflection / $|F|^2$ (N·mm per N$^2$)")
@@ -221,4 +203,4 @@ def table3_work_per_load(rows: list[dict], corrupt: list[dict]) -> bytes:
     ax.set_ylabel(r"work / $|F|^2$ (printed unit or N·mm, per N$^2$)")
     fig.legend(loc="lower center", ncol=3, fontsize=9, bbox_to_anchor=(0.5, 0.01))
     ax.grid(alpha=0.3)
-    return _png(fig)
+    return png(fig, dpi=110)

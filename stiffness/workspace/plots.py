@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stiffness.figures import margins, png
 from stiffness.workspace.distributed import worker_robot
 from stiffness.workspace.maps import MapAccumulator
 from stiffness.workspace.spec import COUNT_LABELS, ScanSpec
@@ -43,26 +44,6 @@ def _load_title(spec: ScanSpec, j: int) -> str:
     return f"case {spec.load_names[j]}: ({load}) N"
 
 
-def _png(fig: Figure) -> bytes:
-    """The figure as PNG bytes (100 dpi) at its own size: its margins are set in inches to fit
-    its text (:func:`_margins`), so no tight-bbox pass (a second drawing of the figure, 40 % of
-    a scan's figure time) crops it."""
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    return buf.getvalue()
-
-
-def _margins(fig: Figure, left: float, right: float, bottom: float, top: float,
-             wspace: float = 0.6, hspace: float = 0.42) -> None:
-    """Subplot margins of ``fig`` in inches (left, right, bottom, top), and the gaps between
-    panels as fractions of their mean width (``wspace``) and height (``hspace``)."""
-    width, height = fig.get_size_inches()
-    fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
-                        top=1.0 - top / height, wspace=wspace, hspace=hspace)
-
-
 def _panels(count: int) -> tuple[Figure, list[Axes]]:
     """A figure of ``count`` panels, up to four per row (matplotlib's Agg renderer; no pyplot:
     no figure manager, nothing to close), room on the right for a colour bar's labels."""
@@ -72,7 +53,7 @@ def _panels(count: int) -> tuple[Figure, list[Axes]]:
     rows = -(-count // cols)
     fig = Figure(figsize=(4.2 * cols + 0.4, 3.4 * rows + 0.3))
     axes = fig.subplots(rows, cols, squeeze=False)
-    _margins(fig, 0.75, 1.1 if count > 1 else 0.3, 0.55, 0.75)
+    margins(fig, 0.75, 1.1 if count > 1 else 0.3, 0.55, 0.75, wspace=0.6, hspace=0.42)
     for ax in axes.flat[count:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:count])
@@ -82,7 +63,7 @@ def counts_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
     """Stacked bars: configurations per definiteness class of K_C, per load case."""
     fig, (ax,) = _panels(1)
     fig.set_size_inches(max(5.0, 0.9 * len(spec.loads) + 2), 3.8)
-    _margins(fig, 0.8, 0.2, 0.55, 0.35)
+    margins(fig, 0.8, 0.2, 0.55, 0.35, wspace=0.6, hspace=0.42)
     counts = acc.parts["k_c_counts"]
     x = np.arange(len(spec.loads))
     bottom = np.zeros(len(spec.loads))
@@ -95,7 +76,7 @@ def counts_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
     ax.set_ylabel("configurations")
     ax.set_title(f"{spec.robot['source']} {spec.preset}: definiteness of K_C")
     ax.legend(fontsize=8, loc="upper right")
-    return _png(fig)
+    return png(fig, dpi=100)
 
 
 def _mesh(ax: Axes, spec: ScanSpec, acc: MapAccumulator, values: np.ndarray,
@@ -153,7 +134,7 @@ def stiffness_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
         fig.colorbar(mesh, ax=axes[1:], label="min stiffness, enhanced / conventional")
     fig.suptitle(f"{spec.robot['source']} {spec.preset}: smallest principal stiffness of K_X "
                  "(minimum over the other coordinates)", fontsize=10)
-    return _png(fig)
+    return png(fig, dpi=100)
 
 
 def definiteness_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
@@ -181,7 +162,7 @@ def definiteness_figure(spec: ScanSpec, acc: MapAccumulator) -> bytes:
         bar.ax.set_yticklabels(COUNT_LABELS)
     fig.suptitle(f"{spec.robot['source']} {spec.preset}: most frequent class of K_C "
                  "(over the other coordinates)", fontsize=10)
-    return _png(fig)
+    return png(fig, dpi=100)
 
 
 def all_figures(spec: ScanSpec, acc: MapAccumulator) -> dict[str, bytes]:
