@@ -165,20 +165,21 @@ def resolve_inputs(args: argparse.Namespace, require_load: bool = True) -> KxInp
     # without --q and robot defaults: the reference pose (zero, or the assembly found near it)
     coords = None if reference else flags.coordinates_from_args(robot, args)
     kq: np.ndarray | list[float] | None
+    springs = None  # the model file whose springs K_theta is, if it is one's
     if cm is not None:
-        kq, kq_source = cm.k_theta, f"{flags.FROM_MODEL} {args.model}"
+        kq, kq_source, springs = cm.k_theta, f"{flags.FROM_MODEL} {args.model}", model
     elif args.kq is not None:
         kq, kq_source = flags.parse_kq(args.kq, robot), f"{flags.FROM_FLAG} --kq"
     elif model is not None and tuple(model.compliant_joints) == tuple(robot.compliant_joints):
-        kq, kq_source = model.k_theta, f"{flags.FROM_MODEL} {args.model}"
+        kq, kq_source, springs = model.k_theta, f"{flags.FROM_MODEL} {args.model}", model
     else:
         kq, kq_source = default_stiffness(robot), flags.FROM_ROBOT
     if kq is None:
         raise flags.stiffness_required(robot)
     k_theta = joint_stiffness(kq, robot.n_compliant)
-    undetermined = {} if model is None or kq_source != f"{flags.FROM_MODEL} {args.model}" else (
-        undetermined_labels(model.undetermined_joints, rigid_springs(
-            model.compliant_joints, model.k_theta, model.ci95_low, model.ci95_high)))
+    undetermined = {} if springs is None else undetermined_labels(
+        springs.undetermined_joints, rigid_springs(springs.compliant_joints, springs.k_theta,
+                                                   springs.ci95_low, springs.ci95_high))
     assembly = robot.assemble(coords)
     q = assembly.q
     if coords is None:
