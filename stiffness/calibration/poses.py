@@ -235,15 +235,25 @@ class Workspace:
             if not -tol <= shift <= hi - lo + tol:
                 out.append(f"{names[i]} {shown(i, value)} outside [{shown(i, lo, False)}, "
                            f"{shown(i, hi)}]")
+        for terms, combo, near, margin in self.avoided(coords, tol):
+            i = next(iter(terms))
+            text = " + ".join(names[j] if c == 1.0 else f"{c:g} {names[j]}"
+                              for j, c in terms.items())
+            out.append(f"{text} {shown(i, combo)} within {shown(i, margin)} of "
+                       f"{shown(i, near)}")
+        return out
+
+    def avoided(self, coords: np.ndarray, tolerance: float = 0.0
+                ) -> list[tuple[dict[int, float], float, float, float]]:
+        """The ``avoid`` rules the coordinates ``coords`` (SI) break: each one's terms, their
+        combination, its nearest avoided value and the margin, where the combination is within
+        the margin less ``tolerance`` of that value."""
+        out = []
         for terms, values, margin in self.avoid:
             combo = sum(c * float(coords[j]) for j, c in terms.items())
             near = min(values, key=lambda v: abs(combo - v))
-            if abs(combo - near) < margin - tol:
-                i = next(iter(terms))
-                text = " + ".join(names[j] if c == 1.0 else f"{c:g} {names[j]}"
-                                  for j, c in terms.items())
-                out.append(f"{text} {shown(i, combo)} within {shown(i, margin)} of "
-                           f"{shown(i, near)}")
+            if abs(combo - near) < margin - tolerance:
+                out.append((terms, combo, near, margin))
         return out
 
     def draw(self, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator
@@ -258,16 +268,13 @@ class Workspace:
         for i in range(len(lo)):
             if i not in ruled:
                 coords[i] = rng.uniform(lo[i], hi[i])
-        for c, values, margin in self.avoid:
-            combo = sum(v * coords[j] for j, v in c.items())
-            if min(abs(combo - v) for v in values) < margin:
-                return None
+        if self.avoided(coords):
+            return None
         for i, values in self.choice.items():
             coords[i] = rng.choice(values)
         for i, constant, c in self.linear:
             coords[i] = constant + sum(v * coords[j] for j, v in c.items())
         return coords
-
 
 
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
