@@ -695,9 +695,7 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     ``rotation_mean_error``, ``rotation_max_error`` (of the orientation error's angle) and
     ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
     """
-    campaign = _in_model_order(model.markers, campaign)
-    model = PoseModel(campaign.robot, model.markers, model.families,
-                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    model, campaign = _on_campaign(model, campaign)
     err = np.linalg.norm(campaign.positions - predict(model, x, campaign), axis=2)
     lu = campaign.units.length_to_si
     out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
@@ -715,9 +713,7 @@ def validation_residual(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
                         ) -> np.ndarray:
     """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
     was not seen; markers in the model's order, as :func:`validation_errors` reads them)."""
-    campaign = _in_model_order(model.markers, campaign)
-    model = PoseModel(campaign.robot, model.markers, model.families,
-                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    model, campaign = _on_campaign(model, campaign)
     return campaign.positions - predict(model, x, campaign)
 
 
@@ -727,9 +723,7 @@ def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
     was not seen; markers in the model's order, as :func:`validation_errors` reads them) and
     the prediction's Jacobian (n, M, 3, p) with respect to ``x``
     (:meth:`~stiffness.calibration.pose_model.PoseModel.evaluate`, the fit's)."""
-    campaign = _in_model_order(model.markers, campaign)
-    model = PoseModel(campaign.robot, model.markers, model.families,
-                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    model, campaign = _on_campaign(model, campaign)
     y, jac = model.evaluate(x, rows_of(model, campaign))
     assert jac is not None
     return campaign.positions - y, jac
@@ -742,14 +736,21 @@ def validation_orientations(model: PoseModel, x: np.ndarray, campaign: PoseCampa
     :class:`~stiffness.calibration.pose_orientation.PoseObservations`; row by row, markers in
     the model's order) and its prediction's Jacobian (N_r, p) with respect to ``x``. The
     campaign measures orientations and declares both noise stds."""
-    campaign = _in_model_order(model.markers, campaign)
-    model = PoseModel(campaign.robot, model.markers, model.families,
-                      (model.rotation0, model.translation0), campaign.loads, model.settings)
+    model, campaign = _on_campaign(model, campaign)
     observed = PoseObservations(model, campaign, rows_of(model, campaign))
     residual, jac = observed.evaluate(x)
     assert jac is not None and observed.weight is not None
     positions = int(observed.observed.sum())
     return -residual[positions:] / observed.weight, jac[positions:] / observed.weight
+
+
+def _on_campaign(model: PoseModel, campaign: PoseCampaign) -> tuple[PoseModel, PoseCampaign]:
+    """The fitted ``model`` on ``campaign``'s robot and loads, and ``campaign`` with its markers
+    in the model's order (:func:`_in_model_order`): what every validation function evaluates."""
+    campaign = _in_model_order(model.markers, campaign)
+    return PoseModel(campaign.robot, model.markers, model.families,
+                     (model.rotation0, model.translation0), campaign.loads,
+                     model.settings), campaign
 
 
 def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
