@@ -307,19 +307,17 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     say = progress or (lambda text: None)
     compliant = tuple(campaign.robot().compliant_joints)
     geo = Geometry.of(campaign.robot())
-    rows = geo.rows(campaign.q, campaign.force, campaign.moment,
-                    labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
-                    joint_angles=campaign.robot_settings.joint_angles)
     n = campaign.deflection.size * (1 if campaign.rotation is None else 2)
     if n <= len(compliant) + 1:
         raise StiffnessError(f"{n} residual components cannot diagnose a model of "
                              f"{len(compliant)} stiffnesses; add measurement rows")
     known, source, note = translation_noise(campaign, loss)
     sigma = None if known is None else known.sigma
-    refs0 = References.of(geo, rows, 1e5, campaign.deflection, masses)
-    base, measured, scale, rot_sigma, rot_source = _baseline_fit(
-        campaign, Hypothesis(geo, rows, campaign.baseline, compliant, (), refs0), n, sigma,
-        loss, masses)
+    build = baseline_builder(geo, compliant, masses)
+    start = build(campaign)
+    rows = start.rows
+    base, measured, scale, rot_sigma, rot_source = _baseline_fit(campaign, start, n, sigma,
+                                                                 loss, masses)
     known = pooled_replicates(known, campaign, loss != "linear")
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed, campaign.wrench)
@@ -334,8 +332,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
-    flipped = flipped_column_note(campaign, baseline_builder(geo, compliant, masses), base.x,
-                                  base.rss, known.sigma, fit_options(len(compliant))) if (
+    flipped = flipped_column_note(campaign, build, base.x, base.rss, known.sigma,
+                                  fit_options(len(compliant))) if (
         gof_final is not None and above_noise(gof_final) and loss == "linear" and known
         is not None and base.x.size == len(compliant)) else []
     noise_final = interval_quantiles(known, final, n, campaign, measured)

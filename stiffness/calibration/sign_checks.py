@@ -88,17 +88,16 @@ def flipped_column_note(campaign: Campaign, build: Callable[[Campaign], Hypothes
             "sign convention and correct the column"]
 
 
-
 def baseline_builder(geometry: Geometry, compliant: tuple[str, ...], masses: str
                      ) -> Callable[[Campaign], Hypothesis]:
     """The stiffness-only baseline of a campaign of ``geometry``'s robot, as ``diagnose`` fits
-    it (its ``compliant`` joints, the references of the links' ``masses``), under the
-    campaign's formulation (the enhanced one for ``exact``): the ``build`` of
-    :func:`flipped_column_note`."""
+    it (its ``compliant`` joints, the references of the links' ``masses``, the campaign's
+    formulation: conventional or enhanced), which ``diagnose`` starts from and refits with a
+    column reversed (the ``build`` of :func:`flipped_column_note`)."""
     def build(campaign: Campaign) -> Hypothesis:
         rows = geometry.rows(campaign.q, campaign.force, campaign.moment,
+                             labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
                              joint_angles=campaign.robot_settings.joint_angles)
-        formulation = "enhanced" if campaign.baseline == "exact" else campaign.baseline
-        return Hypothesis(geometry, rows, formulation, compliant, (), References.of(
+        return Hypothesis(geometry, rows, campaign.baseline, compliant, (), References.of(
             geometry, rows, 1e5, campaign.deflection, masses))
     return build
