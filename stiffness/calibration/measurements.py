@@ -214,8 +214,6 @@ def check_units_comment(declared: Units, expected: Units, source: object, path: 
                               "them agree", path=path, line=line)
 
 
-
-
 def parse_number(cell: str, data: Path, line: int, col: int, name: str) -> float:
     text = cell.strip()
     try:

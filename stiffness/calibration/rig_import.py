@@ -325,25 +325,27 @@ def _key_orders(tables: list[Table], key: str) -> list[list[int]]:
         j = t.header.index(key)
         where: dict[str, int] = {}
         for i, row in enumerate(t.rows):
-            if join_key(row[j]) in where:
-                raise FileFormatError(f"key {row[j]!r} repeats line "
-                                      f"{t.lines[where[join_key(row[j])]]}; join keys must be "
-                                      "unique in each file (numbers by their value)",
-                                      path=t.path, line=t.lines[i], column=j + 1, field=key)
-            where[join_key(row[j])] = i
+            value = join_key(row[j])
+            if value in where:
+                raise FileFormatError(f"key {row[j]!r} repeats line {t.lines[where[value]]}; "
+                                      "join keys must be unique in each file (numbers by their "
+                                      "value)", path=t.path, line=t.lines[i], column=j + 1,
+                                      field=key)
+            where[value] = i
         index.append(where)
     first = tables[0]
     j0 = first.header.index(key)
+    keys = [join_key(row[j0]) for row in first.rows]
     orders = []
     for t, where in zip(tables, index, strict=True):
         order = []
-        for i, row in enumerate(first.rows):
-            if join_key(row[j0]) not in where:
+        for i, (row, value) in enumerate(zip(first.rows, keys, strict=True)):
+            if value not in where:
                 raise FileFormatError(f"key {row[j0]!r} has no row in {t.path}; every file "
                                       "needs a row for each key", path=first.path,
                                       line=first.lines[i], column=j0 + 1, field=key)
-            order.append(where[join_key(row[j0])])
-        extra = set(where) - {join_key(row[j0]) for row in first.rows}
+            order.append(where[value])
+        extra = set(where) - set(keys)
         if extra:
             i = min(where[k] for k in extra)
             raise FileFormatError(f"key {t.rows[i][t.header.index(key)]!r} has no row in "
