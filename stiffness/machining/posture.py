@@ -369,13 +369,13 @@ def posture(
     region = Region.of(full, layers)
     # 2. dynamic programming over (angle, branch), inside the declared workspace where it can
     choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
-                            region)
+                            region.penalty())
     # 3. local refinement
     points = _chosen_points(problem, layers, choice, angles, tick if refine else None, region)
     notes += _notes(points, reference_angle_deg)
     if region.declared:  # the stiffest path with the workspace not judged, to compare
-        free = (_dynamic_programming(problem, layers, branch == "keep", bounded=True)
-                or _dynamic_programming(problem, layers, branch == "keep", bounded=False))
+        free = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
+                       None)[0]
         notes += region.notes([(p.branch, p.outside) for p in points], layers, choice, free)
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
@@ -451,11 +451,11 @@ def _chosen_points(problem: PostureProblem, layers: list[Layer], choice: list[in
 
 
 def _choose(layers: list[Layer], problem: PostureProblem, keep: bool, max_step_deg: float,
-            margin: float, region: Region) -> tuple[list[int], list[str]]:
+            margin: float, penalty: list[np.ndarray] | None) -> tuple[list[int], list[str]]:
     """The DP's choice, bounded point by point by the fixed angle where that is possible,
-    with the fewest points outside the declared workspace ``region``."""
+    with the nodes' ``penalty`` (:meth:`Region.penalty`: the fewest points outside the
+    declared workspace; ``None``: not judged)."""
     notes: list[str] = []
-    penalty = region.penalty()
     choice = _dynamic_programming(problem, layers, keep, bounded=True, penalty=penalty)
     if choice is None:
         choice = _dynamic_programming(problem, layers, keep, bounded=False, penalty=penalty)
