@@ -38,7 +38,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
     lines += ["", *filter(None, [d.plausibility.verdict()]), *d.plausibility.notes(),
               verdict_line(summary), *describe_outliers(d.outliers), "",
               f"identifiability (tolerance {IDENTIFIABILITY_TOL:g}):"]
-    lines += _dropped_lines(d)
+    lines += dropped_lines(d.final.identifiability, d.final.labels())
     rows = {p["parameter"]: p for p in summary["parameters"]}
     held = {k: p for k, p in rows.items() if (p.get("held") or "").startswith("held at its "
                                                                              "nominal value")}
@@ -71,10 +71,6 @@ NO_EFFECT_LISTED = 6
 
 #: Owners (joints, markers, frames) that line names before "and N more".
 _OWNERS_NAMED = 8
-
-
-def _dropped_lines(d: PoseDiagnosis) -> list[str]:
-    return dropped_lines(d.final.identifiability, d.final.labels())
 
 
 def dropped_lines(ident: Identifiability, labels: list[str]) -> list[str]:
