@@ -166,7 +166,9 @@ class Identification(IdentificationResult):
         ``physical_scale``; empty: not judged), JSON ``joints[].physical_scale``.
     conditional_on
         Per joint, the springs rigid to the data (at their bound) its estimate and interval
-        are conditional on (held there), JSON ``joints[].conditional_on``; empty: none. With
+        are conditional on (held there; those that move an end of its interval materially,
+        :func:`~stiffness.calibration.selection.material_holders`), JSON
+        ``joints[].conditional_on``; empty: none. With
         no residual freedom (residual components no more than fitted stiffnesses) such a
         joint is undetermined, as diagnose refuses that campaign (docs/diagnose.md).
     fits_to_noise

@@ -89,6 +89,7 @@ from stiffness.calibration.exact_baseline import ExactObservation
 from stiffness.calibration.fitting import (
     Fit,
     compliance_covariance,
+    compliance_spread,
     covariance,
     fit_model,
     reference_stiffness,
@@ -110,7 +111,7 @@ from stiffness.calibration.pose_identify import PoseIdentification, identify_pos
 from stiffness.calibration.selection import (
     Noise,
     above_noise,
-    held_ends,
+    material_holders,
     noise_terms,
 )
 from stiffness.calibration.sign_checks import flipped_column_note
@@ -369,7 +370,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     outliers, flag_sigma = _outliers(best_fit, measured, campaign, fitted, notes)
     judged = stiffness_parameters(_judging(best_fit, campaign), cov.matrix,
                                   intervals.two_sided(), intervals.one_sided())
-    conditional = _conditional(cov.matrix, rigid, rob.compliant_joints)
+    conditional = _conditional(compliance_spread(best_fit, sigma, measured).matrix
+                               if rigid.any() else cov.matrix, rigid, rob.compliant_joints)
     scale = [p.scale_note for p in judged]
     if n_res <= fitted:  # nothing left to test the bound with: as diagnose, undetermined
         for j, names in enumerate(conditional):
@@ -534,18 +536,16 @@ def _rigid(fit: Fit, sigma: float, measured: np.ndarray, quantile: np.ndarray,
 def _conditional(cov: np.ndarray, rigid: np.ndarray, joints: tuple[str, ...]
                  ) -> tuple[tuple[str, ...], ...]:
     """Per joint, the springs rigid to the data (``rigid``, at their bound) its estimate and
-    interval are conditional on: those an end of its interval holds
-    (:func:`~stiffness.calibration.selection.held_ends`, the rule of both campaign kinds: its
-    covariance with them, none held, not zero); none for a rigid one itself."""
+    interval are conditional on: those that hold an end of its interval and move it
+    materially (:func:`~stiffness.calibration.selection.material_holders`, the rule of both
+    campaign kinds, on ``cov`` in compliance units, where a rigid spring's variance is
+    finite, :func:`~stiffness.calibration.fitting.compliance_spread`); none for a rigid one
+    itself."""
     bound = np.flatnonzero(rigid)
-    out = []
-    for j in range(len(joints)):
-        if rigid[j] or not bound.size or not np.isfinite(cov[j, j]):
-            out.append(())
-            continue
-        low, high = held_ends(cov[j, bound])
-        out.append(tuple(joints[b] for b in bound[low | high]))
-    return tuple(out)
+    return tuple(() if rigid[j] else
+                 tuple(joints[b] for b in bound[material_holders(cov, j, bound,
+                                                                 np.ones(bound.size))])
+                 for j in range(len(joints)))
 
 
 def _held(fit: Fit) -> tuple[str | None, ...]:

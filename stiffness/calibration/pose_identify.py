@@ -26,6 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from stiffness.calibration.fit_verdict import verdict_line
 from stiffness.calibration.outliers import describe_outliers, outlier_keys
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -34,7 +36,7 @@ from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table
 from stiffness.calibration.pose_parameters import SPRINGS
 from stiffness.calibration.result import IdentificationResult
-from stiffness.calibration.selection import held_ends
+from stiffness.calibration.selection import material_holders
 from stiffness.elastic.effects.base import Parameter, reciprocal
 from stiffness.elastic.effects.pose_face import compliance_label
 from stiffness.files import jsonable
@@ -86,10 +88,9 @@ class PoseIdentification(IdentificationResult):
     def conditional_on(self) -> dict[str, list[str]]:
         """Joint -> the parameters at their physical bound (a rigid spring's compliance at 0:
         its joint's name; else its label) its spring's estimate and interval are conditional
-        on, held there: those an end of its interval holds
-        (:func:`~stiffness.calibration.selection.held_ends`, the rule of both campaign kinds:
-        its covariance with them, none held, not zero). Springs conditional on none, at their
-        bound or not fitted are left out."""
+        on, held there: those that hold an end of its interval and move it materially
+        (:func:`~stiffness.calibration.selection.material_holders`, the rule of both campaign
+        kinds). Springs conditional on none, at their bound or not fitted are left out."""
         fit = self.diagnosis.final
         labels, kept = fit.labels(), list(fit.identifiability.kept)
         joints = {compliance_label(j): j for j in fit.model.springs}
@@ -99,9 +100,10 @@ class PoseIdentification(IdentificationResult):
             column = labels.index(compliance_label(joint))
             if not bound or column not in kept or column in fit.at_bound:
                 continue
-            low, high = held_ends(fit.covariance[kept.index(column), bound])
+            on = material_holders(fit.covariance, kept.index(column), bound,
+                                  np.ones(len(bound)))
             names = [joints.get(labels[kept[b]], labels[kept[b]])
-                     for b, on in zip(bound, low | high, strict=True) if on]
+                     for b, named in zip(bound, on, strict=True) if named]
             if names:
                 out[joint] = names
         return out
