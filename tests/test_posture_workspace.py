@@ -73,3 +73,29 @@ def test_a_robot_without_a_workspace_is_not_judged():
     assert result.to_dict()["rows"][0]["in_workspace"] is None
     assert result.summary()["points_outside_workspace"] is None
     assert not [n for n in result.notes if "[workspace]" in n]
+
+
+def test_ignore_workspace_takes_the_stiffest_branch_outside(sk120):
+    """With ``ignore_workspace`` the SK120 point pushed along x takes the stiffest branch
+    within the joint limits, branch B with joint1 at 143 deg (outside [-90, 90]), as before
+    the workspace rule; its first-order deflection |C W| is about half the one inside (each
+    computed here from the model at the chosen coordinates); the point is still reported
+    outside, and one line says so."""
+    point, wrench = [-1.39, -0.95, -0.216], [300.0, 0.0, 0.0]
+    kept = _run(sk120, point, wrench).points[0]
+    result = posture(sk120, np.array([point]), axes=np.array([[0.0, 0.0, -1.0]]),
+                     wrench=wrench, steps=6, refine=False, ignore_workspace=True)
+    free = result.points[0]
+    assert free.branch == "B" and np.rad2deg(free.coords[0]) > 90.0
+    assert not _inside(free.coords) and _inside(kept.coords)
+
+    def deflection(coords: np.ndarray) -> float:
+        return float(np.linalg.norm(sk120.at(coords).compliance() @ np.array(wrench)))
+
+    assert deflection(free.coords) < 0.6 * deflection(kept.coords)
+    row = result.to_dict()["rows"][0]
+    assert row["in_workspace"] is False and row["workspace_departures"]
+    assert result.summary()["points_outside_workspace"] == 1
+    (note,) = [n for n in result.notes if "[workspace]" in n]
+    assert note.startswith("1 of 1 points lie outside the [workspace] of sk120")
+    assert "not judged (--ignore-workspace" in note

@@ -66,6 +66,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--branch", default="any", metavar="any|keep",
                         help="any: the path may change assembly branch where the step bound "
                              "allows; keep: one branch throughout; default any")
+    parser.add_argument("--ignore-workspace", action="store_true",
+                        help="choose among every posture within the joint limits, not first "
+                             "inside the robot's declared [workspace] (where its model is "
+                             "calibrated); the points outside it are still reported")
     parser.add_argument("--no-refine", action="store_true",
                         help="skip the local refinement after the dynamic programming")
     parser.add_argument("--out", metavar="OUT.csv", help="write the joint path here")
@@ -95,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
                      max_step_deg=args.max_step, reference_angle_deg=args.reference_angle,
                      singularity_margin=args.singularity_margin, start=start,
                      refine=not args.no_refine, progress=progress_printer(args, "posture"),
-                     deg=args.deg, branch=args.branch)
+                     deg=args.deg, branch=args.branch,
+                     ignore_workspace=args.ignore_workspace)
     result.write(args.out, figure)
     doc = result.to_dict()
     if args.json:

@@ -26,7 +26,8 @@ Algorithm:
    change between consecutive points at most ``max_step`` (and one branch throughout with
    ``branch="keep"``) and, where the fixed-angle posture on the node's branch is admissible, no
    point worse than it; with a robot's declared ``[workspace]``, where its model is calibrated
-   (:mod:`stiffness.machining.region`), the fewest points outside it first.
+   (:mod:`stiffness.machining.region`), the fewest points outside it first (not with
+   ``ignore_workspace``).
 3. Local refinement: each point's angle walks downhill on its branch in half-spacing steps as
    far as the constraints allow (not capped at one spacing), then a bounded scalar minimisation
    polishes it; a redundant arm then descends the deflection in the null space of its pose
@@ -141,7 +142,8 @@ class PostureResult:
         Whether :meth:`to_dict` and :meth:`csv` give the angles in degrees (else rad).
     workspace
         Whether the robot declares a ``[workspace]``, where its model was calibrated, that the
-        postures were judged against (:attr:`PosturePoint.outside`).
+        postures were judged against (:attr:`PosturePoint.outside`; kept inside unless
+        ``ignore_workspace``).
     """
 
     points: list[PosturePoint]
@@ -300,6 +302,7 @@ def posture(
     k_theta: np.ndarray | list[float] | None = None,
     deg: bool = False,
     branch: str = "any",
+    ignore_workspace: bool = False,
 ) -> PostureResult:
     """The stiffest admissible posture along a path (see the module docstring): ``stiffness
     posture`` (:meth:`PostureResult.to_dict` is its ``--json`` object,
@@ -344,6 +347,11 @@ def posture(
     branch
         ``any``: the path may change branch where the step bound allows; ``keep``: one branch
         along the whole path (the best one).
+    ignore_workspace
+        Whether to choose among every candidate, inside the robot's declared ``[workspace]``
+        or not (``--ignore-workspace``): the stiffest path within the joint limits, as before
+        the workspace rule; each point is still told inside or outside, and a note says how
+        many lie outside. Default false: the fewest points outside first.
 
     Raises
     ------
@@ -366,7 +374,7 @@ def posture(
     tracks, origins = candidate_tracks(problem, angles, sweep, start, full.configuration(start),
                                        tick)
     layers = candidate_layers(problem, tracks, angles)
-    region = Region.of(full, layers)
+    region = Region.of(full, layers, judged=not ignore_workspace)
     # 2. dynamic programming over (angle, branch), inside the declared workspace where it can
     choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
                             region.penalty())
@@ -375,7 +383,7 @@ def posture(
     notes += _notes(points, reference_angle_deg)
     if region.declared:  # the stiffest path with the workspace not judged, to compare
         free = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
-                       None)[0]
+                       None)[0] if region.judged else None
         notes += region.notes([(p.branch, p.outside) for p in points], layers, choice, free)
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,

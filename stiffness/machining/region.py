@@ -6,7 +6,9 @@ identified from them is only calibrated there. ``stiffness posture`` judges ever
 node against it (:meth:`~stiffness.calibration.poses.Workspace.departures`), takes the path
 with the fewest points outside it (then the stiffest), keeps a refined posture inside when its
 node was, and says in one line when the stiffest candidates lie outside or when a point has no
-posture inside. A robot without the table is not judged.
+posture inside. A robot without the table is not judged, nor, with ``--ignore-workspace``
+(``ignore_workspace=True``), one with it: its nodes are still told inside or outside, and
+one line says how many chosen points lie outside.
 
 Units: rad, m; deflections in m.
 """
@@ -38,25 +40,29 @@ class Region:
     weight
         The penalty (m^2) of a node outside in the path search: more than the sum of the
         squared deflections of any path, so the fewest points outside come first.
+    judged
+        Whether the search keeps inside it (false: ``ignore_workspace``, the nodes told
+        inside or outside but none set aside).
     """
 
     robot: Robot
     workspace: Workspace
     outside: list[list[tuple[str, ...]]]
     weight: float
+    judged: bool = True
 
     @classmethod
-    def of(cls, robot: Robot, layers: list[Layer]) -> Region:
+    def of(cls, robot: Robot, layers: list[Layer], judged: bool = True) -> Region:
         """The workspace of ``robot`` (read once, by :meth:`Workspace.of`) with its judgement
-        of every node of ``layers``."""
+        of every node of ``layers``; ``judged`` false: the search does not keep inside it."""
         workspace = Workspace.of(robot)
         if not workspace.declared:
-            return cls(robot, workspace, [], 0.0)
+            return cls(robot, workspace, [], 0.0, judged)
         outside = [[tuple(workspace.departures(robot, c)) for c in layer.coords]
                    for layer in layers]
         total = sum(float(np.max(np.where(np.isfinite(layer.values), layer.values, 0.0) ** 2,
                                  initial=0.0)) for layer in layers)
-        return cls(robot, workspace, outside, 2.0 * total if total > 0 else 1.0)
+        return cls(robot, workspace, outside, 2.0 * total if total > 0 else 1.0, judged)
 
     @property
     def declared(self) -> bool:
@@ -70,16 +76,17 @@ class Region:
 
     def penalty(self) -> list[np.ndarray] | None:
         """Per point, per node, :attr:`weight` outside the workspace and 0 inside (m^2);
-        ``None`` without a declared workspace."""
-        if not self.declared:
+        ``None`` without a declared workspace or not :attr:`judged`."""
+        if not self.declared or not self.judged:
             return None
         return [self.weight * np.array([bool(o) for o in row], dtype=float)
                 for row in self.outside]
 
     def keeper(self, i: int, n: int) -> Callable[[np.ndarray], bool]:
         """Whether coordinates may replace node ``n`` of point ``i`` in the refinement: any
-        when the node is outside (or nothing is declared), else those inside."""
-        if not self.declared or self.outside[i][n]:
+        when the node is outside (or nothing is declared or :attr:`judged`), else those
+        inside."""
+        if not self.declared or not self.judged or self.outside[i][n]:
             return lambda coords: True
         return lambda coords: not self.judge(coords)
 
@@ -88,9 +95,15 @@ class Region:
         """One line when points of the chosen path (``points``: each one's branch and what
         puts it outside) are outside the workspace (none inside within reach), or when the
         stiffest path over every node, ``free`` (the search without the workspace), leaves
-        it while the chosen one keeps inside."""
+        it while the chosen one keeps inside; not :attr:`judged`, how many chosen points
+        lie outside."""
         where = f"the [workspace] of {self.robot.title} (where its model is calibrated)"
         out = [i for i, (_, outside) in enumerate(points) if outside]
+        if out and not self.judged:
+            (branch, outside), i = points[out[0]], out[0]
+            return [f"{len(out)} of {len(points)} points lie outside {where}, not judged "
+                    f"(--ignore-workspace; row {i + 1}, branch {branch}: {outside[0]}): "
+                    "their deflections extrapolate the model"]
         if out:
             (branch, outside), i = points[out[0]], out[0]
             return [f"{len(out)} of {len(points)} points have no posture inside {where} "
