@@ -348,10 +348,8 @@ def posture(
         ``any``: the path may change branch where the step bound allows; ``keep``: one branch
         along the whole path (the best one).
     ignore_workspace
-        Whether to choose among every candidate, inside the robot's declared ``[workspace]``
-        or not (``--ignore-workspace``): the stiffest path within the joint limits, as before
-        the workspace rule; each point is still told inside or outside, and a note says how
-        many lie outside. Default false: the fewest points outside first.
+        Choose among every candidate, not first those inside the robot's declared
+        ``[workspace]`` (``--ignore-workspace``); the points outside are still reported.
 
     Raises
     ------
@@ -381,14 +379,25 @@ def posture(
     # 3. local refinement
     points = _chosen_points(problem, layers, choice, angles, tick if refine else None, region)
     notes += _notes(points, reference_angle_deg)
-    if region.declared:  # the stiffest path with the workspace not judged, to compare
-        free = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
-                       None)[0] if region.judged else None
-        notes += region.notes([(p.branch, p.outside) for p in points], layers, choice, free)
+    notes += _workspace_notes(region, layers, problem, choice, points,
+                              (branch == "keep", max_step_deg, singularity_margin))
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
                          {branch_label(b): o.coords for b, o in enumerate(origins)}, deg,
                          region.declared)
+
+
+def _workspace_notes(region: Region, layers: list[Layer], problem: PostureProblem,
+                     choice: list[int], points: list[PosturePoint],
+                     search: tuple[bool, float, float]) -> list[str]:
+    """What :meth:`Region.notes` says of the chosen path (``choice``, ``points``) against the
+    declared workspace, compared, where the search kept inside it, with the stiffest path
+    with the workspace not judged (``search``: ``keep``, ``max_step_deg``,
+    ``singularity_margin`` as :func:`_choose` takes them); nothing without one."""
+    if not region.declared:
+        return []
+    free = _choose(layers, problem, *search, None)[0] if region.judged else None
+    return region.notes([(p.branch, p.outside) for p in points], layers, choice, free)
 
 
 def _notes(points: list[PosturePoint], reference_angle_deg: float) -> list[str]:
