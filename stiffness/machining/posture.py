@@ -374,13 +374,12 @@ def posture(
     layers = candidate_layers(problem, tracks, angles)
     region = Region.of(full, layers, judged=not ignore_workspace)
     # 2. dynamic programming over (angle, branch), inside the declared workspace where it can
-    choice, notes = _choose(layers, problem, branch == "keep", max_step_deg, singularity_margin,
-                            region.penalty())
+    search = (branch == "keep", max_step_deg, singularity_margin)
+    choice, notes = _choose(layers, problem, *search, region.penalty())
     # 3. local refinement
     points = _chosen_points(problem, layers, choice, angles, tick if refine else None, region)
-    notes += _notes(points, reference_angle_deg)
-    notes += _workspace_notes(region, layers, problem, choice, points,
-                              (branch == "keep", max_step_deg, singularity_margin))
+    notes += _notes(points, reference_angle_deg) + _workspace_notes(
+        region, layers, problem, choice, points, search)
     return PostureResult(points, tuple(full.coordinate_joints), float(ref), angles,
                          float(np.deg2rad(max_step_deg)), notes, poses, problem.angular,
                          {branch_label(b): o.coords for b, o in enumerate(origins)}, deg,
