@@ -188,15 +188,30 @@ def default_target_offset(model: pin.Model, frame_id: int) -> np.ndarray:
 
 def gripper_joints(model: pin.Model, mimics: tuple[Mimic, ...]) -> frozenset[str]:
     """Joints of ``<mimic>`` couplings that act side by side (a gripper's jaws: the follower
-    does not hang below its leader) and a last joint named as a jaw (:func:`jaw_joints`), which
+    does not hang below its leader, and the leader carries no arm: :func:`_carries_arm`) and a
+    last joint named as a jaw (:func:`jaw_joints`), which
     do not lengthen a chain for the default target."""
     out: set[str] = set(jaw_joints(model))
+    coupled = {m.follower for m in mimics} | {m.leader for m in mimics}
     for m in mimics:
         if model.existJointName(m.follower) and model.existJointName(m.leader) and \
                 model.getJointId(m.leader) in model.supports[model.getJointId(m.follower)]:
             continue  # a serial coupling: the follower extends the leader's chain
+        if model.existJointName(m.leader) and _carries_arm(model, model.getJointId(m.leader),
+                                                           coupled):
+            continue  # a linkage inside the arm (irb6640's balancer cylinder on joint_2)
         out |= {m.leader, m.follower}
     return frozenset(out)
+
+
+def _carries_arm(model: pin.Model, leader: int, coupled: set[str]) -> bool:
+    """Whether joint ``leader`` carries more moving joints of no ``<mimic>`` coupling below it
+    than there are moving joints above it: an arm's joint whose side-by-side follower is a
+    linkage (a balancer's cylinder and piston), not a gripper's jaw, which carries at most its
+    own coupled finger joints."""
+    below = sum(1 for j in range(1, model.njoints) if j != leader and leader in model.supports[j]
+                and model.joints[j].nv > 0 and model.names[j] not in coupled)
+    return below > moving_depth(model)[model.parents[leader]]
 
 
 _AT_ORIGIN_M = 1e-9  # a frame this close to its joint's origin sits at it (m)

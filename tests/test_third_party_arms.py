@@ -1,0 +1,91 @@
+"""Defects found by running the commands on third-party industrial arm URDFs (ROS-Industrial,
+MATLAB's and the Robotics Toolbox's robot files), each reproduced on a small URDF written here.
+Positions are checked by finite differences of the target's placement."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stiffness.robot.robot import load_robot
+
+_LIMIT = '<limit lower="-3" upper="3" effort="100" velocity="1"/>'
+_INERTIAL = ('<inertial><mass value="{m}"/><origin xyz="0 0 0.1"/>'
+             '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial>')
+
+
+def arm_urdf(extra: str = "", mass: float = 2.0, links: str = "") -> str:
+    """A 4-joint arm (z, y, y, x axes; 0.3 m links) ending in a fixed ``tool0`` (0.05 m off
+    joint_4's axis), with ``extra`` joints and ``links`` added."""
+    axes = ["0 0 1", "0 1 0", "0 1 0", "1 0 0"]
+    parts = ['<robot name="arm">', '<link name="base_link"/>']
+    parent = "base_link"
+    for i, axis in enumerate(axes, start=1):
+        parts += [f'<link name="link_{i}">{_INERTIAL.format(m=mass)}</link>',
+                  f'<joint name="joint_{i}" type="revolute"><parent link="{parent}"/>'
+                  f'<child link="link_{i}"/><origin xyz="0 0 {0.3 if i > 1 else 0.1}"/>'
+                  f'<axis xyz="{axis}"/>{_LIMIT}</joint>']
+        parent = f"link_{i}"
+    parts += ['<link name="tool0"/>', '<joint name="flange" type="fixed"><parent link="link_4"/>'
+              '<child link="tool0"/><origin xyz="0.1 0.05 0"/></joint>', links, extra, "</robot>"]
+    return "\n".join(parts)
+
+
+def _position(robot, coords: np.ndarray) -> np.ndarray:
+    q = robot.configuration(coords)
+    pin.framesForwardKinematics(robot.model, robot.data, q)
+    return robot.data.oMf[robot.target_frame_id].act(robot.target_offset)
+
+
+def _moves(robot, joint: str, coords: np.ndarray, h: float = 1e-6) -> float:
+    """How far the target moves per rad of ``joint`` (m/rad), central differences."""
+    step = np.zeros(robot.n_coordinates)
+    step[robot.coordinate_joints.index(joint)] = h
+    return float(np.linalg.norm(_position(robot, coords + step)
+                                - _position(robot, coords - step)) / (2 * h))
+
+
+_BALANCER = """
+<link name="cylinder"/><link name="piston"/>
+<joint name="joint_cylinder" type="continuous"><parent link="link_1"/><child link="cylinder"/>
+  <origin xyz="-0.2 0 0.1"/><axis xyz="0 1 0"/><mimic joint="joint_2" multiplier="-0.25"/></joint>
+<joint name="joint_piston" type="continuous"><parent link="link_2"/><child link="piston"/>
+  <origin xyz="-0.2 0 0.05"/><axis xyz="0 1 0"/><mimic joint="joint_2" multiplier="-1.25"/></joint>
+"""
+
+
+def test_a_balancer_mimicking_the_shoulder_is_not_a_gripper(tmp_path: Path):
+    """ABB irb6640/6600/6700 (ROS-Industrial) model the shoulder's balancer as two continuous
+    joints mimicking joint_2, one beside it on link_1: the side-by-side coupling was read as a
+    gripper's jaws, every frame below joint_2 as the gripper, and the default target became
+    link_1 with joint_1 the only spring. The target is the tool, all four joints springs."""
+    path = tmp_path / "balancer.urdf"
+    path.write_text(arm_urdf(_BALANCER))
+    robot = load_robot(path)
+    assert robot.target_frame == "tool0"
+    assert robot.compliant_joints == ("joint_1", "joint_2", "joint_3", "joint_4")
+    coords = np.array([0.3, 0.4, -0.5, 0.2])
+    assert min(_moves(robot, j, coords) for j in robot.compliant_joints) > 0.04
+
+
+def test_a_grippers_jaws_on_the_arm_are_still_not_the_target(tmp_path: Path):
+    """Two jaws on the last link, one mimicking the other side by side (a panda's fingers):
+    the target stays on the arm's last link, the jaws are no springs and do not move it."""
+    jaws = """
+<link name="finger_l"/><link name="finger_r"/>
+<joint name="finger_1" type="prismatic"><parent link="link_4"/><child link="finger_l"/>
+  <origin xyz="0.05 0.01 0"/><axis xyz="0 1 0"/><limit lower="0" upper="0.04" effort="1"
+  velocity="1"/></joint>
+<joint name="finger_2" type="prismatic"><parent link="link_4"/><child link="finger_r"/>
+  <origin xyz="0.05 -0.01 0"/><axis xyz="0 -1 0"/><limit lower="0" upper="0.04" effort="1"
+  velocity="1"/><mimic joint="finger_1"/></joint>
+"""
+    path = tmp_path / "jaws.urdf"
+    path.write_text(arm_urdf(_BALANCER + jaws))
+    robot = load_robot(path)
+    assert robot.target_frame == "tool0"
+    assert robot.compliant_joints == ("joint_1", "joint_2", "joint_3", "joint_4")
+    coords = np.array([0.3, 0.4, -0.5, 0.2, 0.01])
+    assert _moves(robot, "finger_1", coords) < 1e-9
