@@ -263,3 +263,35 @@ def test_two_offsets_the_campaign_does_not_tell_apart_are_named_cancelling(wrist
     assert p.cancelling[0].correlation == pytest.approx(rho, abs=1e-3)
     assert record[0]["unit"] == "rad" and record[0]["correlation"] == pytest.approx(rho, abs=1e-3)
     assert "elbow_joint zero and wrist_1_joint zero (+8 and -7.5 deg) cancel" in p.verdict()
+
+
+@pytest.mark.parametrize("tilt_deg", [6.0, 4.0])
+def test_a_base_tilt_beyond_a_few_degrees_is_implausible(tilt_deg):
+    """A soft UR10 (springs 7.5e4-7.5e3 N.m/rad) on a base tilted ``tilt_deg`` about x and
+    -1 deg about y, 20 poses, two markers, 20 um, 150 N payload, the base tilt fitted: its
+    intervals cover both angles, and the plausibility names the x tilt beyond the 5 deg limit
+    at 6 deg (IMPLAUSIBLE ANGLES, plausible false), nothing at 4 deg (fitted 6.27 deg [5.79,
+    6.75] and 4.27 [3.79, 4.75]: about three standard errors from the limit). It fails with the
+    limit removed (6 deg not named) or its comparison reversed (4 deg named)."""
+    robot = load_robot("ur10", frame="tool0")
+    tilt = np.radians([tilt_deg, -1.0])
+    hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])), np.array([2.0, -1.0, 0.5]),
+                              np.array([m.offset for m in MARKERS]), np.zeros(6),
+                              np.zeros((6, 6)), np.array([3e5, 2e5, 1.2e5, 4e4, 3e4, 3e4]) / 4,
+                              base_tilt=tilt)
+    campaign = simulate_pose_campaign(robot, MARKERS, hidden, 20, 20e-6, seed=2,
+                                      payload=np.array([0.0, 0.0, -150.0, 0.0, 0.0, 0.0]))
+    d = diagnose_poses(campaign, families=["joint_compliance", "base_tilt"], max_steps=0)
+    table = {p["parameter"]: p for p in d.to_dict()["parameters"]}
+    for axis, angle in zip(("rx", "ry"), tilt, strict=True):
+        low, high = table[f"base tilt {axis}"]["interval_95"]
+        assert low < angle < high
+    p, record = d.plausibility, d.to_dict()["plausibility"]
+    assert p.lengths_plausible
+    if tilt_deg < 5.0:
+        assert p.plausible and p.turned == () and record["beyond_angles"] == []
+        return
+    assert not p.plausible and [b.parameter for b in p.turned] == ["base tilt rx"]
+    assert record["beyond_angles"][0]["limit"] == pytest.approx(np.radians(5.0))
+    assert any(line.startswith("IMPLAUSIBLE ANGLES") and "base tilt rx" in line
+               for line in format_pose_report(d).splitlines())
