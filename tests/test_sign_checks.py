@@ -1,19 +1,33 @@
-"""A force or deflection column with its sign reversed is named (stiffness.calibration.
-sign_checks): identify's fit then misses the data by tens of noise stds, and the note said only
-"model error or underestimated noise"."""
+"""A force, moment, deflection or rotation column with its sign reversed is named
+(stiffness.calibration.sign_checks): identify's fit then misses the data by tens of noise stds,
+and the note said only "model error or underestimated noise"."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import stiffness
-from stiffness.calibration.sign_checks import FLIP_GAIN
+from stiffness.calibration.deflection_noise import (
+    fit_options,
+    residual_scale,
+    translation_noise,
+    weighted_observations,
+)
+from stiffness.calibration.fitting import fit_model
+from stiffness.calibration.identify import PAPER_START_SI, stiffness_model
+from stiffness.calibration.sign_checks import flipped_column_note
+from stiffness.mechanics.equilibrium import solve_equilibrium
 
 ARM = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
 K = [3e4, 2e4, 1.5e4]  # N.m/rad
+UR5 = {"kq": K, "compliant_joints": ARM, "configs": 6, "loads_per_config": 3,
+       "noise_std_m": 1e-5}
+SK120_DH = Path(__file__).resolve().parents[1] / "examples" / "sk120-dh" / "robot.toml"
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +57,7 @@ def test_a_reversed_column_is_named(clean, array, j, name):
     assert len(said) == 1, result.notes
     assert f"with the sign of column {name} reversed the residuals fall " in said[0]
     gain = float(said[0].split(" times ")[0].rsplit(" ", 1)[1])
-    assert gain >= FLIP_GAIN
+    assert gain > 100  # 1.96e3 (fx), 1.68e3 (dy)
     assert f"{name} looks written with the opposite sign" in said[0]
     ratio = float(said[0].split("x the noise")[0].rsplit(", ", 1)[1])
     assert 0.5 < ratio < 1.5, said[0]
@@ -80,3 +94,108 @@ def test_a_fit_without_residual_freedom_is_not_checked(clean):
                   config=clean.config[:1], lines=None)
     result = stiffness.identify(one, starts=1)
     assert result.fits_to_noise["p_value"] is None and _sign_notes(result) == []
+
+
+def _with_moments(campaign, seed: int):
+    """``campaign`` (with rotations) under moments besides its forces, uniform in +-10 N.m per
+    axis: its deflections and rotations recomputed from the exact equilibrium
+    (:func:`solve_equilibrium`, Newton on the full kinematics, not the fitted linear model) of
+    the springs ``K``, with the campaign's noise drawn again."""
+    rng = np.random.default_rng(1000 + seed)
+    robot = campaign.robot()
+    moment = rng.uniform(-10.0, 10.0, campaign.force.shape)
+    deflection, rotation = np.empty_like(moment), np.empty_like(moment)
+    for i in range(campaign.n_rows):
+        eq = solve_equilibrium(robot, robot.configuration(campaign.q[i]), np.diag(K),
+                               np.concatenate([campaign.force[i], moment[i]]))
+        deflection[i], rotation[i] = eq.dx, eq.rotation
+    return replace(campaign, moment=moment,
+                   deflection=deflection + rng.normal(0.0, campaign.noise_std_m, moment.shape),
+                   rotation=rotation + rng.normal(0.0, campaign.rotation_noise_std_rad,
+                                                  moment.shape))
+
+
+def _ur5(kind: str, seed: int, effects: tuple[str, ...] = ()):
+    """A UR5 campaign of 18 rows at 10 um: forces only, with measured rotations (0.1 mrad), or
+    with both and applied moments (no hidden effect then)."""
+    campaign = stiffness.simulate("ur5", effects=list(effects), rotations=kind != "forces",
+                                  seed=seed, **UR5).campaign
+    return _with_moments(campaign, seed) if kind == "moments" else campaign
+
+
+def _checked(campaign) -> list[str]:
+    """The check on identify's baseline fit (its model, weighting and solver options; one start
+    at its paper start), run whether or not that fit misses the data."""
+    model = stiffness_model(campaign, "enhanced")
+    options = fit_options(len(model.compliant))
+    known = translation_noise(campaign)[0]
+    assert known is not None
+    model, (measured, weight, _, _) = weighted_observations(
+        campaign, model, residual_scale(campaign), options, known, "linear", PAPER_START_SI)
+    fit = fit_model(model, measured, known.sigma,
+                    np.full(len(model.compliant), math.log(PAPER_START_SI)), **options)
+    return flipped_column_note(campaign, lambda c: stiffness_model(c, "enhanced"), fit.x,
+                               fit.rss, known.sigma, options, weight)
+
+
+HIDDEN = ((), ("backlash:shoulder_lift_joint=0.002",), ("force_sensor_bias=5",),
+          ("frame_misalignment=2",))
+
+
+@pytest.mark.parametrize("kind", ["forces", "rotations", "moments"])
+def test_honest_campaigns_name_no_column(kind):
+    """No column reversed, 12 seeds each, forces only, with rotations, with moments and
+    rotations (the first two with a hidden effect in turn: none, a backlash, a 5 N force sensor
+    bias, a 2 deg frame misalignment, which make the real fit miss the noise and run the check):
+    the check, run on every one, names nothing. Reversing a right column raised the residual
+    sum of squares in every one of 3 seeds of a sweep (by 38 noise variances at least,
+    rotations of an SK120; 1e3 to 6e4 for the others), where naming takes a fall of 25."""
+    named = {}
+    for seed in range(12):
+        effects = () if kind == "moments" else HIDDEN[seed % len(HIDDEN)]
+        notes = _checked(_ur5(kind, seed, effects))
+        if notes:
+            named[(seed, effects)] = notes
+    assert named == {}
+
+
+@pytest.fixture(scope="module")
+def with_moments():
+    """A UR5 campaign of 18 rows with rotations and moments, no column reversed."""
+    return _ur5("moments", 1)
+
+
+@pytest.mark.parametrize("array, j, name", [("force", 0, "fx"), ("deflection", 0, "dx"),
+                                            ("moment", 0, "mx"), ("rotation", 0, "rx")])
+def test_a_reversed_column_is_named_with_rotations_and_moments(with_moments, array, j, name):
+    """identify on the campaign with moments and rotations, one column negated (RMS 28x, 25x,
+    16x, 6.1x the noise): the note names that column, the fit with it reversed back at the
+    noise; the campaign as it is has no note."""
+    assert _sign_notes(stiffness.identify(with_moments, starts=2)) == []
+    result = stiffness.identify(_flipped(with_moments, array, j), starts=2)
+    said = _sign_notes(result)
+    assert len(said) == 1, result.notes
+    assert said[0].startswith(f"with the sign of column {name} reversed the residuals fall ")
+    ratio = float(said[0].split("x the noise")[0].rsplit(", ", 1)[1])
+    assert 0.5 < ratio < 1.5, said[0]
+
+
+def test_the_sk120_scenario_with_rotations_and_a_backlash():
+    """The SK120-DH campaign of `stiffness simulate --effect backlash:joint2=0.002 --rotations`
+    (40 rows at 5 um) with fx negated: diagnose ended UNEXPLAINED after adding a transversal
+    compliance and a force sensor bias, and no note (rotations were not checked). Its verdict
+    now names fx; the fit with fx reversed back is 2.2x the noise (the backlash the baseline
+    lacks), which the note says; identify's note is the same."""
+    campaign = stiffness.simulate(str(SK120_DH), effects=["backlash:joint2=0.002"],
+                                  rotations=True, noise_std_m=5e-6, seed=0).campaign
+    flipped = _flipped(campaign, "force", 0)
+    d = stiffness.diagnose(flipped).to_dict()
+    assert d["unexplained"] is True
+    note = d["flipped_column"]
+    assert note.startswith("with the sign of column fx reversed the residuals fall ")
+    ratio = float(note.split("x the noise")[0].rsplit(", ", 1)[1])
+    assert 1.5 < ratio < 3.0, note
+    assert note.endswith(f"the rest, {ratio:.2g}x the noise, is something else: diagnose the "
+                         "corrected campaign")
+    assert _sign_notes(stiffness.identify(flipped, starts=2)) == [note]
+    assert "flipped_column" not in stiffness.diagnose(campaign, max_steps=1).to_dict()

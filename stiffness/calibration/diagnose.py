@@ -333,7 +333,7 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
     flipped = flipped_column_note(campaign, build, base.x, base.rss, known.sigma,
-                                  fit_options(len(compliant))) if (
+                                  fit_options(len(compliant)), base.model.rotation_weight) if (
         gof_final is not None and above_noise(gof_final) and loss == "linear" and known
         is not None and base.x.size == len(compliant)) else []
     noise_final = interval_quantiles(known, final, n, campaign, measured)

@@ -360,7 +360,7 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
         notes += flipped_column_note(
             campaign, lambda c: stiffness_model(c, "enhanced" if formulation == "exact"
                                                 else formulation, rob),
-            best_fit.x, best_fit.rss, sigma, fit_options(p))
+            best_fit.x, best_fit.rss, sigma, fit_options(p), weight)
     cov = covariance(best_fit, sigma, measured)
     intervals = interval_quantiles(level.noise, best_fit, n_res, campaign, measured)
     unc = _uncertainty(cov, best.k, intervals.two_sided(), rob.compliant_joints)
