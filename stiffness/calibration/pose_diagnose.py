@@ -686,8 +686,12 @@ def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:
     return None if other is None else validation_errors(fit.model, fit.x, other)
 
 
-def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -> dict:
-    """3-D position errors of ``campaign`` under a fitted model, without refitting.
+def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
+                      residual: np.ndarray | None = None) -> dict:
+    """3-D position errors of ``campaign`` under a fitted model, without refitting;
+    ``residual``: its measured minus predicted positions (m) when already computed
+    (:func:`validation_residual` or :func:`validation_jacobian` of the same arguments), else
+    predicted here.
 
     Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``std_error``,
     ``max_error`` (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and
@@ -696,7 +700,9 @@ def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign) -
     ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
     """
     model, campaign = _on_campaign(model, campaign)
-    err = np.linalg.norm(campaign.positions - predict(model, x, campaign), axis=2)
+    if residual is None:
+        residual = campaign.positions - predict(model, x, campaign)
+    err = np.linalg.norm(residual, axis=2)
     lu = campaign.units.length_to_si
     out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
     out["markers"] = {m.name: {**error_summary(err[:, k], lu), "unit": campaign.units.length}

@@ -425,7 +425,11 @@ def validate(model: ModelFile | str | os.PathLike,
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
                        poses.robot.name, model, campaign_name(campaign))
     calibration = read_pose_model(model, poses.robot)
-    errors = validation_errors(calibration.model, calibration.x, poses)
+    # the positions predicted once: with the Jacobian where the parameters' covariance needs it
+    residual, jac = (validation_jacobian(calibration.model, calibration.x, poses)
+                     if calibration.covariance is not None else
+                     (validation_residual(calibration.model, calibration.x, poses), None))
+    errors = validation_errors(calibration.model, calibration.x, poses, residual)
     noise = None if poses.noise_std is None else poses.noise_std / poses.units.length_to_si
     rotations = rotation_residual = rotation_jacobian = None
     if poses.rotations is not None and poses.noise_std is not None \
@@ -435,19 +439,17 @@ def validate(model: ModelFile | str | os.PathLike,
         rotations = RotationTerm.of(rotation_residual, poses.noise_std, poses.noise_std_rotation,
                                     poses.units.length_to_si, poses.units.rotation_to_si)
     term = None
-    if calibration.covariance is not None:
-        residual, jac = validation_jacobian(calibration.model, calibration.x, poses)
+    if calibration.covariance is not None and jac is not None:
         seen = np.isfinite(residual)
-        residual, jac = residual[seen], jac[seen]
+        stacked, stacked_jac = residual[seen], jac[seen]
         if rotations is not None and rotation_residual is not None \
                 and rotation_jacobian is not None:
-            residual, jac = rotations.stacked(residual, jac, rotation_residual,
-                                              rotation_jacobian, poses.units.length_to_si)
-        term = ParameterTerm.of(calibration.covariance, residual, jac,
+            stacked, stacked_jac = rotations.stacked(stacked, stacked_jac, rotation_residual,
+                                                     rotation_jacobian, poses.units.length_to_si)
+        term = ParameterTerm.of(calibration.covariance, stacked, stacked_jac,
                                 [p.label for p in calibration.model.parameters],
                                 poses.units.length_to_si)
-    flagged = flagged_rows(-validation_residual(calibration.model, calibration.x, poses)
-                           / poses.units.length_to_si, noise, poses.labels, poses.lines,
+    flagged = flagged_rows(-residual / poses.units.length_to_si, noise, poses.labels, poses.lines,
                            [f"{m.name}_{a}" for m in calibration.model.markers for a in "xyz"])
     return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term,
                       rotations, flagged)
