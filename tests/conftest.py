@@ -416,3 +416,28 @@ def sk120_report_run(tmp_path_factory, worker_id) -> tuple[Path, str]:
 def sk120_report(sk120_report_run) -> Path:
     """The folder of :func:`sk120_report_run`."""
     return sk120_report_run[0]
+
+
+@pytest.fixture(scope="session")
+def ur5_rigid_wrist_model(tmp_path_factory, worker_id) -> Path:
+    """The model file ``identify`` writes (its defaults) of one simulated UR5 campaign loading
+    a wrist spring of 1e13 N.m/rad, rigid to its 5 um noise (pan, lift, elbow 3e4, 2e4, 1.5e4
+    N.m/rad; 4 configurations of 3 loads up to 100 N, seed 1): written once per test run (about
+    1.5 s of CPU) in the run's folder, under a lock, for test_kx_model and
+    test_confounded_springs, which only read it."""
+    import stiffness
+
+    root = tmp_path_factory.getbasetemp()
+    if worker_id != "master":
+        root = root.parent  # the folder of this run, above each worker's own
+    folder = root / "ur5-rigid-wrist"
+    with open(root / "ur5-rigid-wrist.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / "m.json").exists():
+            joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
+                      "wrist_1_joint"]
+            stiffness.simulate("ur5", kq=[3e4, 2e4, 1.5e4, 1e13], compliant_joints=joints,
+                               configs=4, loads_per_config=3, max_force=100.0,
+                               noise_std_m=5e-6, seed=1).write(folder / "c")
+            stiffness.identify(folder / "c").write_model(folder / "m.json")
+    return folder / "m.json"

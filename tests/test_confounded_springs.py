@@ -125,28 +125,22 @@ def _plain(path, joints: list[str]) -> str:
             "did not load it): K_X in the directions it governs rests on an unidentified value")
 
 
-def test_a_spring_bounded_only_from_below_is_not_called_unloaded(tmp_path):
-    """A UR5 campaign loading a wrist spring of 1e13 N.m/rad (rigid to 5 um noise): identify
-    marks it undetermined with a 95 % interval open above. Loading its model file said 'its
-    campaign did not load it', which it did; the file's value (where the fit stopped) read as
-    a stiffness. Now the warning gives the interval's lower end and says the value is not a
-    measurement."""
-    import stiffness
-
-    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint"]
-    stiffness.simulate("ur5", kq=[3e4, 2e4, 1.5e4, 1e13], compliant_joints=joints, configs=4,
-                       loads_per_config=3, max_force=100.0, noise_std_m=5e-6,
-                       seed=1).write(tmp_path / "c")
-    stiffness.identify(tmp_path / "c").write_model(tmp_path / "m.json")
-    doc = json.loads((tmp_path / "m.json").read_text())
+def test_a_spring_bounded_only_from_below_is_not_called_unloaded(ur5_rigid_wrist_model):
+    """A UR5 campaign loading a wrist spring of 1e13 N.m/rad (rigid to 5 um noise,
+    ``ur5_rigid_wrist_model``): identify marks it undetermined with a 95 % interval open above.
+    Loading its model file said 'its campaign did not load it', which it did; the file's value
+    (where the fit stopped) read as a stiffness. Now the warning gives the interval's lower end
+    and says the value is not a measurement."""
+    path = ur5_rigid_wrist_model
+    doc = json.loads(path.read_text())
     assert doc["undetermined_joints"] == ["wrist_1_joint"]
     k, low = doc["k_theta"]["values"][3], doc["k_theta"]["ci95"]["low"][3]
     assert doc["k_theta"]["ci95"]["high"][3] is None and 0 < low < k
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        load_model(tmp_path / "m.json")
+        load_model(path)
     said = [str(w.message) for w in caught if "wrist_1_joint" in str(w.message)]
-    assert said == [f"{tmp_path / 'm.json'}: the stiffness of wrist_1_joint is bounded by its "
+    assert said == [f"{path}: the stiffness of wrist_1_joint is bounded by its "
                     f"campaign only from below (stiffer than {low:.3g} SI at 95 %, perhaps "
                     f"rigid): the file's {k:.3g} is where the fit stopped, not a measurement; "
                     "K_X in the directions it governs rests on it"], said

@@ -70,24 +70,20 @@ def test_six_dimensional_principal_values_are_reported_per_block(capsys):
     assert "principal rotational stiffnesses (N.m/rad" in text
 
 
-def test_kx_echoes_a_rigid_spring_as_rigid_not_as_its_file_value(tmp_path, capsys):
-    """A UR5 campaign loading a wrist spring of 1e13 N.m/rad (rigid to 5 um noise): its model
-    file keeps where the fit stopped (1.78e5 N.m/rad, seed 1) with a 95 % interval open above.
-    ``kx --model`` echoed ``wrist_1_joint=178275`` as a stiffness; it now says rigid (held, not
-    determined) with the interval's lower end, and ``--json`` names it in
-    ``K_theta_undetermined`` while ``K_theta_named`` keeps the file's value."""
-    import stiffness
-
-    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint"]
-    stiffness.simulate("ur5", kq=[3e4, 2e4, 1.5e4, 1e13], compliant_joints=joints, configs=4,
-                       loads_per_config=3, max_force=100.0, noise_std_m=5e-6,
-                       seed=1).write(tmp_path / "c")
-    stiffness.identify(tmp_path / "c").write_model(tmp_path / "m.json")
-    doc = json.loads((tmp_path / "m.json").read_text())
+def test_kx_echoes_a_rigid_spring_as_rigid_not_as_its_file_value(ur5_rigid_wrist_model,
+                                                                 capsys):
+    """A UR5 campaign loading a wrist spring of 1e13 N.m/rad (rigid to 5 um noise,
+    ``ur5_rigid_wrist_model``): its model file keeps where the fit stopped (1.78e5 N.m/rad,
+    seed 1) with a 95 % interval open above. ``kx --model`` echoed ``wrist_1_joint=178275`` as
+    a stiffness; it now says rigid (held, not determined) with the interval's lower end, and
+    ``--json`` names it in ``K_theta_undetermined`` while ``K_theta_named`` keeps the file's
+    value."""
+    path = ur5_rigid_wrist_model
+    doc = json.loads(path.read_text())
     k, low = doc["k_theta"]["values"][3], doc["k_theta"]["ci95"]["low"][3]
     assert doc["undetermined_joints"] == ["wrist_1_joint"]
     assert doc["k_theta"]["ci95"]["high"][3] is None
-    args = ["kx", "--model", str(tmp_path / "m.json"), "--q", "0,-1.2,1.5,-0.3,1.57,0",
+    args = ["kx", "--model", str(path), "--q", "0,-1.2,1.5,-0.3,1.57,0",
             "--wrench", "0,0,-100"]
     assert main(args) == 0
     echo = next(line for line in capsys.readouterr().out.splitlines()
