@@ -66,6 +66,7 @@ from stiffness.calibration.pose_diagnose import (
     validation_orientations,
     validation_residual,
 )
+from stiffness.calibration import pose_register
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.file_model import fitted_prediction
@@ -266,6 +267,17 @@ class Validation:
         measures none or declares no rotation noise (or no position noise).
     outliers
         The rows the model does not predict (:func:`flagged_rows`; none without a noise).
+    frame
+        A pose model's measuring frame registered anew on the campaign
+        (:func:`~stiffness.calibration.pose_register.refit_frame`): ``applied`` (the errors
+        are after it: ``validate --refit-frame``), ``families`` refitted (``frame``, and
+        ``markers`` with ``--refit-markers``), ``parameters`` (their identifiable count),
+        ``rms`` (the 3-D RMS after it),
+        ``translation`` (campaign length unit) and ``rotation_deg`` of the motion; ``None``
+        for a deflection model.
+    refitted
+        Parameters fitted to the campaign (those of ``frame["parameters"]`` when applied): the
+        chi-square's degrees of freedom are the components less these.
     """
 
     model: str
@@ -277,6 +289,8 @@ class Validation:
     parameters: ParameterTerm | None = None
     rotations: RotationTerm | None = None
     outliers: tuple[Outlier, ...] = ()
+    frame: dict | None = None
+    refitted: int = 0
 
     @property
     def position_components(self) -> int:
@@ -325,7 +339,7 @@ class Validation:
         if chi2 is None or self.noise_std is None:
             return None
         return Noise(self.noise_std).goodness_of_fit(chi2 * self.noise_std ** 2,
-                                                     self.components, 0)
+                                                     self.components, self.refitted)
 
     @property
     def verdict_test(self) -> str:
@@ -366,7 +380,8 @@ class Validation:
                                                         * self.noise_std ** 2)))
         return {**self.errors, "kind": self.kind, "model": self.model,
                 "campaign": self.campaign, "robot": self.robot, "noise_std": self.noise_std,
-                "rms_over_noise": ratio, "chi2": self.chi2, "dof": self.components,
+                "rms_over_noise": ratio, "chi2": self.chi2,
+                "dof": self.components - self.refitted, "frame_refit": self.frame,
                 "rotation_noise_std": None if self.rotations is None
                 else self.rotations.noise_std,
                 "rotation_components": 0 if self.rotations is None
@@ -385,7 +400,8 @@ class Validation:
 
 
 def validate(model: ModelFile | str | os.PathLike,
-             campaign: Campaign | PoseCampaign | str | os.PathLike) -> Validation:
+             campaign: Campaign | PoseCampaign | str | os.PathLike,
+             refit: tuple[str, ...] = ()) -> Validation:
     """The model file ``model`` (a path, or a deflection model read: :class:`ModelFile`)
     evaluated on ``campaign`` (a ``campaign.toml`` or its folder, or a campaign loaded):
     errors in the campaign's length unit and the verdict against its declared noise. A pose
@@ -393,7 +409,12 @@ def validate(model: ModelFile | str | os.PathLike,
     :func:`~stiffness.elastic.model_file.read_model_file` reads of it (its springs and elastic
     families, on the calibrated robot), as a :class:`ModelFile` of it given here is
     (refused as another kind of campaign until 6 December 2026, given by its path); it carries
-    no parameter covariance, so its verdict is the noise-only test's.
+    no parameter covariance, so its verdict is the noise-only test's. A pose model's
+    measuring frame is registered anew on the campaign in every case (:attr:`Validation.frame`);
+    with ``refit`` (``("frame",)``: a campaign of another day, the tracker moved; with
+    ``"markers"`` too, a marker plate mounted again) those families are fitted to the campaign
+    and the errors and the verdict are after it (their parameters counted), else with the
+    model's.
 
     Raises
     ------
@@ -425,6 +446,12 @@ def validate(model: ModelFile | str | os.PathLike,
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
                        poses.robot.name, model, campaign_name(campaign))
     calibration = read_pose_model(model, poses.robot)
+    moved, registration = pose_register.refit_frame(calibration.model, calibration.x, poses,
+                                                    tuple(refit) or ("frame",))
+    slices = calibration.model.slices()
+    frame = [k for f in refit for k in range(slices[f].start, slices[f].stop)]
+    if refit:
+        calibration = replace(calibration, x=moved)
     # the positions predicted once: with the Jacobian where the parameters' covariance needs it
     residual, jac = (validation_jacobian(calibration.model, calibration.x, poses)
                      if calibration.covariance is not None else
@@ -442,6 +469,10 @@ def validate(model: ModelFile | str | os.PathLike,
     if calibration.covariance is not None and jac is not None:
         seen = np.isfinite(residual)
         stacked, stacked_jac = residual[seen], jac[seen]
+        if refit:  # fitted here: its fit's uncertainty is not the prediction's
+            stacked_jac[:, frame] = 0.0
+            if rotation_jacobian is not None:
+                rotation_jacobian[:, frame] = 0.0
         if rotations is not None and rotation_residual is not None \
                 and rotation_jacobian is not None:
             stacked, stacked_jac = rotations.stacked(stacked, stacked_jac, rotation_residual,
@@ -451,8 +482,14 @@ def validate(model: ModelFile | str | os.PathLike,
                                 poses.units.length_to_si)
     flagged = flagged_rows(-residual / poses.units.length_to_si, noise, poses.labels, poses.lines,
                            [f"{m.name}_{a}" for m in calibration.model.markers for a in "xyz"])
+    lu = poses.units.length_to_si
+    registered = {"applied": bool(refit), "families": list(refit) or ["frame"],
+                  "parameters": registration["parameters"], "rms": registration["rms"] / lu,
+                  "translation": [v / lu for v in registration["translation"]],
+                  "rotation_deg": registration["rotation_deg"], "unit": poses.units.length}
     return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term,
-                      rotations, flagged)
+                      rotations, flagged, registered,
+                      registration["parameters"] if refit else 0)
 
 
 def flagged_rows(residual: np.ndarray, noise: float | None, labels: list[str] | tuple[str, ...],

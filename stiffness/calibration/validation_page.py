@@ -6,6 +6,8 @@ text of ``stiffness validate`` and ``diagnose --validate``."""
 
 from __future__ import annotations
 
+import numpy as np
+
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, describe_outliers
 from stiffness.calibration.steps_table import stage_table
 from stiffness.htmlpage import esc, table
@@ -62,9 +64,38 @@ def format_validation(result: dict) -> str:
              *(_validation_row(n, r) for n, r in [("all", result), *result["markers"].items()])]
     flagged = describe_outliers([Outlier(**o) for o in result.get("outliers", [])],
                                 result.get("outlier_threshold", OUTLIER_THRESHOLD))
-    return "\n".join(lines + [_noise_verdict(result)] + (
+    return "\n".join(lines + _frame_lines(result) + [_noise_verdict(result)] + (
         flagged if result.get("verdict") is not None else []) + ["", *stage_table(
             [("model", result)])])
+
+
+#: A model's frame registered anew that leaves at most this share of the 3-D RMS says the
+#: campaign's measuring frame is not the model's.
+FRAME_SHARE = 0.5
+
+
+def _frame_lines(result: dict) -> list[str]:
+    """What registering the measuring frame anew says: after ``--refit-frame``, the motion
+    fitted; without it, when it would leave at most :data:`FRAME_SHARE` of the RMS, that the
+    error is mostly the frame's, with the flag."""
+    frame = result.get("frame_refit")
+    if not frame or frame["rms"] is None or result["rms"] is None:
+        return []
+    t = np.asarray(frame["translation"], dtype=float)
+    angle = float(np.linalg.norm(frame["rotation_deg"]))
+    motion = f"{np.linalg.norm(t):.4g} {frame['unit']} and {angle:.3g} deg"
+    if frame["applied"]:
+        what = " and ".join({"frame": "measuring frame", "markers": "marker offsets"}[f]
+                            for f in frame["families"])
+        return [f"{what} fitted to this campaign: the frame moved by {motion} from the "
+                f"model's; the errors and the verdict are after it ({frame['parameters']} "
+                "parameters)"]
+    if frame["rms"] > FRAME_SHARE * result["rms"]:
+        return []
+    return [f"note: the error is mostly the measuring frame's: the model's frame moved by "
+            f"{motion} leaves an RMS of {frame['rms']:.4g} {frame['unit']} "
+            f"({frame['rms'] / result['rms']:.2g} of it); a campaign of another day or with "
+            "the tracker moved is judged with --refit-frame"]
 
 
 def _noise_verdict(result: dict) -> str:

@@ -18,7 +18,9 @@ covariance). The campaign must be of the model's robot (one line refuses another
 ``markers`` (the same keys per marker), ``kind``, ``model``, ``campaign``, ``robot``
 (``source``, ``coordinates``, ``fingerprint``), ``noise_std``, ``rms_over_noise``, ``chi2``,
 ``dof``, ``gof_p``, ``verdict``, ``chi2_with_parameters``, ``gof_p_with_parameters``,
-``verdict_test``, ``parameter_uncertainty``
+``verdict_test``, ``parameter_uncertainty``, ``frame_refit`` (the measuring frame registered
+anew on the campaign: ``applied`` with ``--refit-frame``, ``rms`` after it, ``translation``,
+``rotation_deg``; ``null`` for a deflection model)
 (:class:`stiffness.calibration.validation.Validation`).
 """
 
@@ -39,12 +41,21 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="campaign.toml, or the folder holding it")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
+    parser.add_argument("--refit-frame", action="store_true",
+                        help="pose campaigns: fit the measuring frame (6 parameters) to the "
+                        "campaign before judging it, the rest of the model as it is: a "
+                        "campaign of another day or with the tracker moved")
+    parser.add_argument("--refit-markers", action="store_true",
+                        help="pose campaigns: fit the markers' offsets to the campaign too (a "
+                        "marker plate mounted again); implies --refit-frame")
     flags.add_strict_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness validate``; returns the exit code."""
-    result = validate(args.model, args.campaign).to_dict()
+    refit = (("frame", "markers") if args.refit_markers
+             else ("frame",) if args.refit_frame else ())
+    result = validate(args.model, args.campaign, refit=refit).to_dict()
     print(json.dumps(result, indent=1, allow_nan=False) if args.json
           else format_validation(result))
     return 0
