@@ -56,6 +56,7 @@ from typing import cast
 
 import numpy as np
 
+from stiffness.calibration import pose_register
 from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, flag_outliers
@@ -66,7 +67,6 @@ from stiffness.calibration.pose_diagnose import (
     validation_orientations,
     validation_residual,
 )
-from stiffness.calibration import pose_register
 from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.file_model import fitted_prediction
