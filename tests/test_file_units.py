@@ -274,3 +274,33 @@ def test_a_reading_a_hair_past_a_limit_is_not_blamed_on_the_units(tmp_path):
                       r"180\] deg\); at most 0.5 deg past, 1 % of the range or less: readings "
                       r"at the end stops, the units look right"):
         load_campaign(folder)
+
+
+def test_one_row_past_a_limit_among_rows_within_is_not_blamed_on_the_units(tmp_path):
+    """FIGAROH's TIAGo (exp_data_oct.csv, rad): the last of 22 rows reads arm_4_joint at
+    -0.896 rad, limits [-0.393, 2.356] rad, and the warning said "the angles look like
+    degrees" (in degrees every row would sit within a few degrees of zero, inside every
+    limit). A minority of rows beyond, every other row within the limits in the declared unit,
+    is a misread or mistyped row: said so, naming its line; every row beyond still names the
+    degrees."""
+    folder = tmp_path / "camp"
+    folder.mkdir()
+    (folder / "campaign.toml").write_text(
+        'name = "t"\nbaseline = "enhanced"\n[robot]\nsource = "ur5"\n'
+        '[units]\nangle = "rad"\nforce = "N"\nlength = "mm"\n'
+        '[measurement]\ndata = "measurements.csv"\n')
+    q = np.random.default_rng(0).uniform(-1.2, 1.2, (5, 6))
+    q[3, 2] = 3.6  # elbow_joint, limits [-pi, pi]: 0.46 rad past, 7 % of its range
+    rows = "".join(f"P{i},{','.join(f'{v:.4f}' for v in r)},0,0,100,0.1,0.2,0.3\n"
+                   for i, r in enumerate(q))
+    (folder / "measurements.csv").write_text(f"{HEADER},dx,dy,dz\n{rows}")
+    with pytest.warns(DataFileWarning) as caught:
+        load_campaign(folder)
+    said = [str(w.message) for w in caught if "joint limits" in str(w.message)]
+    assert len(said) == 1 and "look like degrees" not in said[0], said
+    assert said[0].endswith("the other 4 rows are within them: a misread or mistyped value on "
+                            "line 5 rather than a unit; check that row"), said[0]
+    (folder / "measurements.csv").write_text(f"{HEADER},dx,dy,dz\n" + "".join(
+        f"P{i},10,-60,80,-20,90,{i}.5,0,0,100,0.1,0.2,0.3\n" for i in range(5)))
+    with pytest.warns(DataFileWarning, match="the angles look like degrees"):
+        load_campaign(folder)

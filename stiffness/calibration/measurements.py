@@ -394,13 +394,19 @@ def coordinates_in_si(robot: Robot, q_file: np.ndarray, units: Units, labels: li
 #: its end stop (FIGAROH's TIAGo: the torso lift 0.184 mm past 0.35 m) rather than a unit.
 END_STOP = 0.01
 
+#: Lines named when fewer than half of the rows are beyond the limits (FIGAROH's TIAGo: 1 of
+#: 22 rows, read as "the angles look like degrees").
+MINORITY_LINES = 5
+
 
 def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[int, ...],
                        data: Path, units: Units) -> None:
     """Warn once when rows hold coordinates beyond the robot's joint limits.
 
     A rig reads its joints within their limits, so such rows usually mean a wrong angle or
-    length unit (degrees read as radians) or the wrong robot. They are still read.
+    length unit (degrees read as radians) or the wrong robot; fewer than half of the rows, the
+    others within the limits, a row misread or mistyped (its lines named). They are still
+    read.
 
     Parameters
     ----------
@@ -425,7 +431,13 @@ def _warn_beyond_limits(robot: Robot, q: np.ndarray, lines: list[int] | tuple[in
     revolute = ~prismatic_mask(robot)
     as_degrees = q.copy()
     as_degrees[:, revolute] = np.deg2rad(q[:, revolute])
-    if units.angle == "rad" and revolute[beyond.any(axis=0)].all() \
+    if 2 * rows.size < len(q):  # most rows within: a row read or typed wrong, not a unit
+        lines_beyond = [str(lines[r]) for r in rows[:MINORITY_LINES]]
+        more = f" and {rows.size - MINORITY_LINES} more" if rows.size > MINORITY_LINES else ""
+        hint = (f"the other {len(q) - rows.size} rows are within them: a misread or mistyped "
+                f"value on line{'s' if rows.size > 1 else ''} {', '.join(lines_beyond)}{more} "
+                f"rather than a unit; check {'those rows' if rows.size > 1 else 'that row'}")
+    elif units.angle == "rad" and revolute[beyond.any(axis=0)].all() \
             and not outside(as_degrees).any():
         hint = 'the angles look like degrees: [units] angle = "deg" (or --units angle=deg)'
     past = np.where(beyond, np.maximum(lo - q, q - hi), 0.0)
