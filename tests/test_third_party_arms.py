@@ -89,3 +89,19 @@ def test_a_grippers_jaws_on_the_arm_are_still_not_the_target(tmp_path: Path):
     assert robot.compliant_joints == ("joint_1", "joint_2", "joint_3", "joint_4")
     coords = np.array([0.3, 0.4, -0.5, 0.2, 0.01])
     assert _moves(robot, "finger_1", coords) < 1e-9
+
+
+def test_a_camera_beside_the_tool_is_not_the_target(tmp_path: Path):
+    """Kinova Gen3 (kortex) carries a camera module beside its tool frame, farther from the
+    wrist: the default target was ``camera_depth_frame`` (and Baxter's ``left_hand_range``).
+    The tool is the target."""
+    sensors = """
+<link name="camera_link"/><link name="camera_depth_frame"/>
+<joint name="camera_module" type="fixed"><parent link="link_4"/><child link="camera_link"/>
+  <origin xyz="0.1 0.1 0.05"/></joint>
+<joint name="depth_module" type="fixed"><parent link="link_4"/><child link="camera_depth_frame"/>
+  <origin xyz="0.1 0.12 0.06"/></joint>
+"""
+    path = tmp_path / "camera.urdf"
+    path.write_text(arm_urdf(sensors))
+    assert load_robot(path).target_frame == "tool0"

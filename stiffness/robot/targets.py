@@ -11,7 +11,8 @@ chains of any lengths (a hand whose thumb is longer than its fingers: g1's); joi
 ``<mimic>`` couplings (a gripper's jaws) and a last joint named as a jaw (``grip`` or ``jaw``
 in its name or its link's, on an arm: z1's ``jointGripper``, so100's ``gripper``) do not lengthen
 a chain. The tip frame is, among the frames carried by the tip joint, the one farthest from the
-joint's origin, a link or tool frame before a joint frame, the last in model order on a tie.
+joint's origin, a link or tool frame before a joint frame, the last in model order on a tie;
+a sensor's frame (a camera, range finder or IMU, by its name) only when there is no other.
 When every such frame sits at the joint's origin (double_pendulum's ``link2``), the default
 target is the tip link's centre of mass, off the joint's axis, instead of that origin.
 """
@@ -83,7 +84,8 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
                                                                                 gripper):
             continue
         distance = float(np.linalg.norm(frame.placement.translation))
-        key = (round(distance, 9), frame.type != pin.FrameType.JOINT, fid)
+        key = (not _sensor(model, fid), round(distance, 9), frame.type != pin.FrameType.JOINT,
+               fid)
         if best_key is None or key > best_key:
             best, best_key = frame.name, key
     hand = _with_descendants(model, gripper) if best is None else gripper
@@ -93,6 +95,21 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
     if best is None:  # only loop-closing frames on the tip joint
         return default_target_frame(model, frozenset(), gripper) if closure_frames else None
     return best
+
+
+_SENSOR_WORDS = ("camera", "optical", "depth", "color", "rgb", "infra", "range", "imu",
+                 "accelerometer", "gyro", "lidar", "laser", "sonar", "kinect", "realsense")
+
+
+def _sensor(model: pin.Model, frame_id: int) -> bool:
+    """Whether frame ``frame_id`` is a sensor's (a camera, range finder, IMU: a word of
+    ``_SENSOR_WORDS`` in its name, or, for a fixed joint's frame, in the link it carries),
+    never the tool: Kinova Gen3's ``camera_depth_frame`` and Baxter's ``left_hand_range`` sit
+    farther from the wrist than the tool frame beside them."""
+    names = [model.frames[frame_id].name] + [
+        f.name for f in model.frames if f.parentFrame == frame_id
+        and model.frames[frame_id].type == pin.FrameType.FIXED_JOINT]
+    return any(word in name.lower() for name in names for word in _SENSOR_WORDS)
 
 
 def _with_descendants(model: pin.Model, joints: frozenset[str]) -> frozenset[str]:
