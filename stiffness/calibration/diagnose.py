@@ -103,7 +103,7 @@ from stiffness.calibration.selection import (
     pooled_replicates,
     row_support,
 )
-from stiffness.calibration.sign_checks import baseline_builder, flipped_column_note
+from stiffness.calibration.sign_checks import baseline_builder, fits_note
 from stiffness.calibration.solver import check_loss
 from stiffness.elastic.effects import LIBRARY, candidates, check_masses, make_effect
 from stiffness.elastic.effects.base import Held, Parameter, effect_place, effect_report, place_label
@@ -332,8 +332,8 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
         current, cv_current = kind.force(current, name)
     final, stop = search(kind, current, cv_current, max_steps)
     gof_final = (final_terms := noise_terms(final, measured)).p_value(known)
-    flipped = flipped_column_note(campaign, build, base.x, base.rss, known.sigma,
-                                  fit_options(len(compliant)), base.model.rotation_weight) if (
+    flipped = fits_note(campaign, build, (base,) if final is base else (base, final),
+                        known.sigma, fit_options(len(compliant))) if (
         gof_final is not None and above_noise(gof_final) and loss == "linear" and known
         is not None and base.x.size == len(compliant)) else []
     noise_final = interval_quantiles(known, final, n, campaign, measured)

@@ -146,10 +146,10 @@ class Diagnosis(DiagnosisResult[Campaign, DeflectionEffect, Fit]):
         normal's), as ``identify`` reports them: JSON ``ci95_dof`` in each entry. Empty: not
         given.
     flipped_column
-        When the final model stays unexplained, the note naming a force or deflection column
-        whose reversed sign lets the baseline explain the data
-        (:func:`~stiffness.calibration.sign_checks.flipped_column_note`), else ``None``; in
-        the verdict and the ``--json`` key of that name.
+        When the final model stays unexplained, the note naming a force, moment, deflection or
+        rotation column whose reversed sign lets the baseline, or the final model, explain the
+        data (:func:`~stiffness.calibration.sign_checks.fits_note`), else ``None``; in the
+        verdict and the ``--json`` key of that name.
     """
 
     geometry: Geometry

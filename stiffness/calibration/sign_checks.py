@@ -9,7 +9,8 @@ the noise, which read as "model error or underestimated noise" and sent the user
 ``diagnose``, whose library holds no reflection.
 
 ``diagnose`` checks its baseline the same way when its final model stays unexplained
-(:func:`baseline_builder`), and its verdict adds the note.
+(:func:`baseline_builder`), then its final model (:func:`fits_note`), and its verdict adds the
+note.
 
 So when a fit does not explain the data to its known noise (declared, or the replicates';
 the chi-square test of :func:`stiffness.calibration.deflection_noise.noise_level`),
@@ -37,14 +38,14 @@ The data are not changed. One reversal is looked for, in one column.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 from scipy.special import chdtrc
 
 from stiffness.calibration.campaign import Campaign
-from stiffness.calibration.fitting import fit_model, observations
+from stiffness.calibration.fitting import Fit, fit_model, observations
 from stiffness.calibration.selection import above_noise
 from stiffness.elastic.effects.geometry import Geometry, References
 from stiffness.elastic.effects.hypothesis import Hypothesis
@@ -79,7 +80,8 @@ def flipped_column_note(campaign: Campaign, build: Callable[[Campaign], Hypothes
         The baseline model of a campaign (``stiffness_model`` with the fit's robot and a
         formulation that is not ``exact``), without a rotation weight.
     x
-        The fit's ``ln k`` (each refit's start, within ``ln 1e2 .. ln 1e8``).
+        The fit's parameters, ``ln k`` first (each refit's start, the ``ln k`` brought within
+        ``ln 1e2 .. ln 1e8``).
     rss
         The fit's residual sum of squares (m^2; rotations weighted by ``weight``).
     sigma
@@ -120,7 +122,6 @@ def reversed_fits(campaign: Campaign, build: Callable[[Campaign], Hypothesis], x
     rotations weighted by ``weight``, m/rad) and its translations' RMS (m). The arguments
     are :func:`flipped_column_note`'s."""
     weight = None if campaign.rotation is None else weight
-    start = np.clip(x, math.log(1e2), math.log(1e8))  # a rigid spring's ln k has no slope
     out = {}
     for name, (array, j) in COLUMNS.items():
         values = getattr(campaign, array)
@@ -130,11 +131,31 @@ def reversed_fits(campaign: Campaign, build: Callable[[Campaign], Hypothesis], x
         flipped[:, j] *= -1.0
         other = replace(campaign, **{array: flipped})
         measured = observations(other.deflection, other.rotation, weight)
-        fit = fit_model(build(other).replaced(rotation_weight=weight), measured, sigma, start,
-                        "trf", anchor=start, **options)
+        model = build(other).replaced(rotation_weight=weight)
+        start = np.array(x, dtype=float)
+        n = len(model.compliant)  # a rigid spring's ln k has no slope
+        start[:n] = np.clip(start[:n], math.log(1e2), math.log(1e8))
+        fit = fit_model(model, measured, sigma, start, "trf", anchor=start, **options)
         translations = fit.predicted[:, :3] - measured[:, :3]
         out[name] = (fit.rss, float(np.sqrt(np.mean(translations ** 2))))
     return out
+
+
+def fits_note(campaign: Campaign, build: Callable[[Campaign], Hypothesis], fits: Sequence[Fit],
+              sigma: float, options: dict) -> list[str]:
+    """:func:`flipped_column_note` of each of ``fits`` in turn, the first note: ``diagnose``'s
+    baseline, then its final model, each refitted over the rows of the campaign with a column
+    reversed (``build``'s, :func:`baseline_builder`; the model's effects and their settings
+    kept), which names a reversal beside an effect the baseline lacks and the search found (a
+    reversed ``rx`` beside a backlash)."""
+    for fit in fits:
+        def refit(other: Campaign, model: Hypothesis = fit.model) -> Hypothesis:
+            return model.replaced(rows=build(other).rows)
+        note = flipped_column_note(campaign, refit, fit.x, fit.rss, sigma, options,
+                                   fit.model.rotation_weight)
+        if note:
+            return note
+    return []
 
 
 def baseline_builder(geometry: Geometry, compliant: tuple[str, ...], masses: str
