@@ -289,3 +289,47 @@ def test_import_reads_roll_pitch_yaw_columns(ur10, tmp_path, capsys):
     capsys.readouterr()
     assert main([*argv, "--out", str(tmp_path / "d")]) == 2
     assert "--rotation-format is for --kind poses" in capsys.readouterr().err
+
+
+def test_import_reads_quaternion_columns(ur10, tmp_path, capsys):
+    """A tracker's rigid body written as quaternions (FIGAROH's TIAGo exp_data_0924.csv:
+    trans_x..z, rot_x, rot_y, rot_z, rot_w) had no rotation format: --rotation-format
+    quaternion reads ``<marker>_qx, _qy, _qz, _qw`` (scalar last) into the campaign's rotation
+    vectors (those simulated, to 1e-9; the quaternions built with Pinocchio, sign flipped on
+    odd rows: q and -q are one rotation). A row off unit norm by more than 1 % (that file's
+    line 3: 1.0324) is warned about naming its line and read normalised; one off by more than
+    half is refused (not a quaternion)."""
+    _, c = _campaign(ur10, 17, n=6)
+    c.rotations[2, 1] = np.nan
+    quats = np.full(c.rotations.shape[:2] + (4,), np.nan)
+    for index in np.ndindex(c.rotations.shape[:2]):
+        if np.all(np.isfinite(c.rotations[index])):
+            quats[index] = pin.Quaternion(pin.exp3(c.rotations[index])).coeffs() * (
+                -1.0 if index[0] % 2 else 1.0)
+    quats[4, 0] *= 1.03
+    cols = [f"{m}_{a}" for m in ("tip", "elbow") for a in "xyz"] + [
+        f"{m}_q{a}" for m in ("tip", "elbow") for a in "xyzw"]
+
+    def write(q: np.ndarray) -> None:
+        rows = [",".join([f"q{i}" for i in range(1, 7)] + cols)] + [
+            ",".join("" if not np.isfinite(v) else repr(float(v)) for v in np.r_[
+                np.rad2deg(c.q[i]), c.positions[i].ravel() * 1e3, q[i].ravel()])
+            for i in range(c.n_rows)]
+        (tmp_path / "rig.csv").write_text("\n".join(rows) + "\n")
+
+    write(quats)
+    argv = ["campaign", "import", str(tmp_path / "rig.csv"), "--robot", "ur10", "--frame",
+            "tool0", "--units", "angle=deg,length=mm", "--quiet", "--kind", "poses",
+            "--rotation-format", "quaternion", "--marker", "tip=tool0@0,30,50", "--marker",
+            "elbow=forearm_link@0,50,200"]
+    with pytest.warns(DataFileWarning, match=r"1 of 6 rows hold quaternions off unit norm by "
+                      r"more than 0.01 \(first: line 6, .* has norm 1.03\); read normalised: "
+                      r"check line 6"):
+        assert main([*argv, "--out", str(tmp_path / "c")]) == 0
+    back = load_pose_campaign(tmp_path / "c")
+    np.testing.assert_allclose(back.rotations, c.rotations, rtol=0, atol=1e-9)
+    quats[1, 1] *= 3.0
+    write(quats)
+    capsys.readouterr()
+    assert main([*argv, "--out", str(tmp_path / "d")]) == 2
+    assert "line 3" in (err := capsys.readouterr().err) and "not a quaternion" in err, err

@@ -13,6 +13,7 @@ axes, at the robot's target frame). Positions are absolute, so no frame is conve
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,18 +42,43 @@ from stiffness.calibration.rig_import import (
     row_labels,
 )
 from stiffness.calibration.unit_checks import check_marker_offsets, check_marker_spread
-from stiffness.errors import StiffnessError, UnknownFrameError, did_you_mean
+from stiffness.errors import DataFileWarning, StiffnessError, UnknownFrameError, did_you_mean
 from stiffness.robot.robot import Robot
 
 
 def marker_targets(markers: list[Marker]) -> tuple[str, ...]:
     """The campaign columns of the markers: ``<marker>_x, _y, _z`` each, and the optional
     ``<marker>_rx, _ry, _rz``."""
-    return tuple(f"{m.name}_{a}" for m in markers for a in ("x", "y", "z", *ROTATION_AXES))
+    return tuple(f"{m.name}_{a}" for m in markers
+                 for a in ("x", "y", "z", *ROTATION_AXES, *QUATERNION_AXES))
 
 
-#: What a rig's orientation columns may hold (:func:`as_rotation_vectors`).
-ROTATION_FORMATS = ("vector", "rpy")
+#: What a rig's orientation columns may hold (:func:`as_rotation_vectors`; ``quaternion``:
+#: :func:`quaternion_vectors`).
+ROTATION_FORMATS = ("vector", "rpy", "quaternion")
+
+#: A marker's quaternion columns (``--rotation-format quaternion``): ``<marker>_qx, _qy, _qz,
+#: _qw``, the scalar last (ROS's and most trackers' order; a file writing it first maps it).
+QUATERNION_AXES = ("qx", "qy", "qz", "qw")
+
+#: Largest departure of a quaternion's norm from 1 read as rounding (values written with 3 or
+#: 4 decimals: FIGAROH's TIAGo exp_data_0924.csv, norms 0.9977-1.0003 but one); beyond it
+#: the rows are warned about (that file's line 3: 1.0324, a value typed wrong), and beyond
+#: :data:`QUATERNION_NORM_REFUSED` refused (not quaternions: columns mapped wrong).
+QUATERNION_NORM_TOL = 0.01
+QUATERNION_NORM_REFUSED = 0.5
+
+
+def quaternion_vectors(quaternions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions (n, 4) ``x, y, z, w`` (NaN rows: not seen) as rotation vectors (n, 3) rad,
+    each normalised, and their norms (n,) (NaN where not seen)."""
+    out = np.full((quaternions.shape[0], 3), np.nan)
+    norms = np.linalg.norm(quaternions, axis=1)
+    for i, q in enumerate(quaternions):
+        if np.all(np.isfinite(q)) and norms[i] > 0:
+            x, y, z, w = q / norms[i]
+            out[i] = pin.log3(pin.Quaternion(w, x, y, z).toRotationMatrix())
+    return out, norms
 
 
 def as_rotation_vectors(rotations: np.ndarray, rotation_format: str) -> np.ndarray:
@@ -133,6 +159,7 @@ def import_pose_campaign(files: list[str | os.PathLike], robot_settings: RobotSe
                             positions * units.length_to_si, loads,
                             None if noise_std is None else noise_std * units.length_to_si,
                             rotations=None if rotations is None
+                            else rotations if rotation_format == "quaternion"
                             else as_rotation_vectors(rotations * units.angle_to_si,
                                                      rotation_format),
                             noise_std_rotation=None if noise_std_rotation is None
@@ -167,24 +194,70 @@ def _check_frames(robot: Robot, markers: list[Marker]) -> None:
 def _orientations(mapper: ColumnMapper, markers: list[Marker], n: int, rotation_format: str,
                   noise_std_rotation: float | None) -> np.ndarray | None:
     """(n, markers, 3) the markers' orientation columns in the files' angle unit, as the files
-    hold them (``rotation_format``), NaN for a marker without them; ``None`` when no marker
-    has them.
+    hold them (``rotation_format``; quaternions as rotation vectors in rad,
+    :func:`_quaternions`), NaN for a marker without them; ``None`` when no marker has them.
 
     Raises
     ------
     StiffnessError
         An unknown ``rotation_format``, or a rotation noise std without orientation columns.
     """
-    turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
-    rotations = (None if all(t is None for t in turns) else np.stack(
-        [np.full((n, 3), np.nan) if t is None else t for t in turns], axis=1))
     if rotation_format not in ROTATION_FORMATS:
         raise StiffnessError(f"rotation format {rotation_format!r}: valid "
                              f"{', '.join(ROTATION_FORMATS)}")
+    if rotation_format == "quaternion":  # rotation vectors in rad already
+        rotations = _quaternions(mapper, markers, n)
+    else:
+        turns = [_marker(mapper, m, ROTATION_AXES, "angle", False) for m in markers]
+        rotations = (None if all(t is None for t in turns) else np.stack(
+            [np.full((n, 3), np.nan) if t is None else t for t in turns], axis=1))
     if noise_std_rotation is not None and rotations is None:
+        columns = "_qx,_qy,_qz,_qw" if rotation_format == "quaternion" else "_rx,_ry,_rz"
         raise StiffnessError("a rotation noise is given but no marker has orientation columns "
-                             "(<marker>_rx,_ry,_rz); map them or drop the rotation noise")
+                             f"(<marker>{columns}); map them or drop the rotation noise")
     return rotations
+
+
+def _quaternions(mapper: ColumnMapper, markers: list[Marker], n: int) -> np.ndarray | None:
+    """(n, markers, 3) rotation vectors (rad) of the markers' quaternion columns
+    (:data:`QUATERNION_AXES`), NaN for a marker without them; ``None`` when no marker has
+    them.
+
+    Raises
+    ------
+    StiffnessError
+        A marker with some of the four cells of a row (as its positions), or a quaternion
+        off unit norm (:func:`quaternion_vectors`; file, line and column named).
+    """
+    out, found = np.full((n, len(markers), 3), np.nan), False
+    for k, m in enumerate(markers):
+        values = _marker(mapper, m, QUATERNION_AXES, "angle", False, units=False)
+        if values is None:
+            continue
+        found = True
+        out[:, k], norms = quaternion_vectors(values)
+        off = np.abs(np.nan_to_num(norms, nan=1.0) - 1.0)
+        if not (off > QUATERNION_NORM_TOL).any():
+            continue
+        columns = mapper.group(tuple(f"{m.name}_{a}" for a in QUATERNION_AXES), True)
+        assert columns is not None
+        rows = np.flatnonzero(off > QUATERNION_NORM_TOL)
+        said = (f"marker {m.name}'s quaternion (x, y, z, w) = ("
+                f"{', '.join(f'{v:.6g}' for v in values[rows[0]])}) has norm "
+                f"{norms[rows[0]]:.6g}")
+        if off.max() > QUATERNION_NORM_REFUSED:
+            raise columns[0].error(int(np.argmax(off)), f"{said.split(' has norm')[0]} has norm "
+                                   f"{norms[int(np.argmax(off))]:.6g}, not 1: not a quaternion; "
+                                   f"map {m.name}_qx,_qy,_qz,_qw to the quaternion's x, y, z "
+                                   "and w (scalar) columns")
+        lines = columns[0].lines
+        warnings.warn(f"{columns[0].path}: {rows.size} of {int(np.isfinite(norms).sum())} rows "
+                      f"hold quaternions off unit norm by more than {QUATERNION_NORM_TOL:g} "
+                      f"(first: line {lines[rows[0]]}, {said}); read normalised: check "
+                      f"line{'s' if rows.size > 1 else ''} "
+                      f"{', '.join(str(lines[r]) for r in rows[:5])}", DataFileWarning,
+                      stacklevel=2)
+    return out if found else None
 
 
 def _scaled_markers(markers: list[Marker], marker_turns: dict[str, np.ndarray] | None,
@@ -220,20 +293,23 @@ def _positions(mapper: ColumnMapper, markers: list[Marker], path: Path) -> np.nd
 
 
 def _marker(mapper: ColumnMapper, marker: Marker, axes: tuple[str, ...] = ("x", "y", "z"),
-            kind: str = "length", required: bool = True) -> np.ndarray | None:
-    """(n, 3) positions (or orientations: ``axes`` ``rx, ry, rz``, ``kind`` angle) of a marker
-    in the files' unit, NaN where its cells are empty; ``None`` for optional columns absent."""
+            kind: str = "length", required: bool = True, units: bool = True
+            ) -> np.ndarray | None:
+    """(n, len(axes)) positions (or orientations: ``axes`` ``rx, ry, rz``, ``kind`` angle;
+    quaternions, ``units`` false: numbers without a unit) of a marker in the files' unit, NaN
+    where its cells are empty; ``None`` for optional columns absent."""
     targets = tuple(f"{marker.name}_{a}" for a in axes)
     cols = mapper.group(targets, required)
     if cols is None:
         return None
-    values = np.column_stack([mapper.values(t, c, kind, empty_is_nan=True)
-                              for t, c in zip(targets, cols, strict=True)])
+    values = np.column_stack([mapper.values(t, c, kind, empty_is_nan=True) if units
+                              else c.numbers(True) for t, c in zip(targets, cols, strict=True)])
     seen = np.isfinite(values)
     partial = np.flatnonzero(seen.any(axis=1) & ~seen.all(axis=1))
     if partial.size:
         row = int(partial[0])
         column = cols[int(np.flatnonzero(~seen[row])[0])]
-        raise column.error(row, f"marker {marker.name!r} has some but not all of its three "
-                                "cells on this row; leave all three empty where it was not seen")
+        count, which = ("three", "all three") if len(axes) == 3 else ("four", "all four")
+        raise column.error(row, f"marker {marker.name!r} has some but not all of its {count} "
+                                f"cells on this row; leave {which} empty where it was not seen")
     return values

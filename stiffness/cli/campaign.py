@@ -80,7 +80,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--rotation-format", choices=ROTATION_FORMATS, default="vector",
                    help="--kind poses: what the orientation columns hold, vector (rotation "
                         "vector, default) or rpy (roll, pitch, yaw about the fixed x, y, z "
-                        "axes, R = Rz Ry Rx: ROS's, FIGAROH's phix,phiy,phiz)")
+                        "axes, R = Rz Ry Rx: ROS's, FIGAROH's phix,phiy,phiz) or quaternion "
+                        "(columns <marker>_qx,_qy,_qz,_qw, the scalar last: a tracker's rigid "
+                        "body)")
     p.add_argument("--baseline", choices=BASELINES, default="enhanced",
                    help="the model identify starts from; default enhanced")
     p.add_argument("--name", default="imported", help="campaign name; default imported")
