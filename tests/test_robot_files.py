@@ -511,6 +511,14 @@ def test_robot_file_notes_print_once_as_notes_and_not_under_quiet(tmp_path):
          "(`xacro bad.urdf > bad.expanded.urdf`"),
     (_planar_arm().replace('lower="-3"', 'lower="${-pi}"'), 8,
      "a xacro file, not a URDF: its lower='${-pi}' is not expanded"),
+    # Pinocchio's 'Some components of min_effort are greater than max_effort' named no joint
+    # (Halodi's eve_r3 writes effort="-1.0" velocity="-1.0" on 23 joints)
+    (_planar_arm().replace('effort="1" velocity="1"', 'effort="-1.0" velocity="-1"'), 8,
+     "joint 'j1' has a negative effort=-1.0 and velocity=-1 in its <limit>, which Pinocchio "
+     "takes as a minimum above the maximum; write the limits as positive numbers"),
+    # 'No name given for the robot.' (ROBOTIS' open_manipulator, xacro-generated)
+    (_planar_arm().replace('<robot name="planar">', '<robot>'), 2,
+     'the <robot> element has no name attribute; name the robot, e.g. <robot name="arm">'),
 ])
 def test_malformed_urdf_is_one_line_with_file_and_line(tmp_path, text, line, problem):
     path = tmp_path / "bad.urdf"

@@ -138,7 +138,12 @@ def _element_line(root, message: str) -> int | None:
 
 
 def _structure_problem(root) -> tuple[str, int] | None:
-    """First joint naming a link the file does not define (urdfdom's message omits the line)."""
+    """What Pinocchio refuses without naming the element (urdfdom's message omits the line,
+    Pinocchio's names no joint): a ``<robot>`` without a name, the first joint naming a link
+    the file does not define, or a ``<limit>`` with a negative effort or velocity."""
+    if root.tag == "robot" and not root.get("name"):
+        return ("the <robot> element has no name attribute; name the robot, e.g. "
+                '<robot name="arm">'), root.sourceline
     links = {link.get("name") for link in root.iter("link")}
     for joint in root.iter("joint"):
         for role in ("parent", "child"):
@@ -147,7 +152,30 @@ def _structure_problem(root) -> tuple[str, int] | None:
             if element is not None and name not in links:
                 return (f"joint {joint.get('name')!r} names the {role} link {name!r}, which the "
                         "file does not define"), element.sourceline
-    return None
+    return _negative_limit(root)
+
+
+def _negative_limit(root) -> tuple[str, int] | None:
+    """First joint whose ``<limit>`` gives a negative effort or velocity (some exporters write
+    -1 for 'no limit'), which Pinocchio refuses as a minimum above the maximum."""
+    def negative(limit) -> list[str]:
+        out = []
+        for bound in ("effort", "velocity"):
+            try:
+                if limit is not None and float(limit.get(bound)) < 0:
+                    out.append(f"{bound}={limit.get(bound)}")
+            except (TypeError, ValueError):
+                continue
+        return out
+    bad = [(joint, negative(joint.find("limit"))) for joint in root.iter("joint")]
+    bad = [(joint, values) for joint, values in bad if values]
+    if not bad:
+        return None
+    joint, values = bad[0]
+    others = f" (and {len(bad) - 1} more joints)" if len(bad) > 1 else ""
+    return (f"joint {joint.get('name')!r} has a negative {' and '.join(values)} in its <limit>"
+            f"{others}, which Pinocchio takes as a minimum above the maximum; write the "
+            "limits as positive numbers (0 if unknown)"), joint.find("limit").sourceline
 
 
 def _joint_problem(root) -> tuple[str, int] | None:
