@@ -32,7 +32,9 @@ the rotations weighted as the fit weighed them). A column is named in a note whe
   beside a reversed ``fx``, the reversal's fit still 2.2x the noise), not merely a part of a
   misfit that something else makes.
 
-The data are not changed. One reversal is looked for, in one column.
+The data are not changed. One reversal is looked for, in one column. A rotation column is
+in effect not checked when the rotations' noise is estimated from the fit's residuals: a
+reversed one then reads as rotation noise, and the fit passes the test.
 """
 
 from __future__ import annotations
