@@ -22,13 +22,18 @@ import pinocchio as pin
 import pytest
 
 from stiffness.calibration import pose_diagnosis
-from stiffness.calibration.pose_campaign import load_pose_campaign, write_pose_campaign
-from stiffness.calibration.pose_diagnose import diagnose_poses
+from stiffness.calibration.pose_campaign import (
+    PoseCampaign,
+    load_pose_campaign,
+    write_pose_campaign,
+)
+from stiffness.calibration.pose_diagnose import CANDIDATES, PoseSearch, diagnose_poses
 from stiffness.calibration.pose_fit import rows_of
 from stiffness.calibration.pose_identify import identify_poses
 from stiffness.calibration.pose_model import Marker
 from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
 from stiffness.calibration.pose_report import format_pose_report
+from stiffness.calibration.search import Stop
 from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.calibration import read_pose_calibration
@@ -218,15 +223,10 @@ def test_a_zero_offset_beyond_a_few_degrees_is_implausible(elbow_deg):
     assert "elbow_joint zero +0.14 rad (+8" in verdict and "NOT A CALIBRATION" not in verdict
 
 
-@pytest.mark.parametrize("wrist_deg", [-7.5, 7.5])
-def test_two_offsets_the_campaign_does_not_tell_apart_are_named_cancelling(wrist_deg):
+def forearm_held(wrist_deg: float) -> PoseCampaign:
     """A UR10 whose forearm keeps its direction over the campaign (shoulder_lift + elbow and
-    shoulder_pan held within 0.03 rad, 15 poses, one marker, 20 um): opposite zero offsets
-    on the parallel elbow and wrist_1 axes move the wrist by one translation, which the
-    measuring frame takes, so the fit trades one for the other. Hidden +8 and -7.5 deg: both
-    beyond the limit and named as cancelling, with their correlation, which a finite-difference
-    Jacobian of the model's predictions gives too (cov = (J^T J)^-1). Hidden +8 and +7.5 deg
-    (same correlation, values that add, not cancel): beyond the limit, not cancelling."""
+    shoulder_pan held within 0.03 rad, 15 poses, one marker, 20 um), its elbow's zero 8 deg
+    off and wrist_1's ``wrist_deg``, wrist_2's and wrist_3's 0.3 deg."""
     robot = load_robot("ur10", frame="tool0")
     rng = np.random.default_rng(1)
     lift = rng.uniform(-1.5, -0.5, 15)
@@ -236,7 +236,19 @@ def test_two_offsets_the_campaign_does_not_tell_apart_are_named_cancelling(wrist
     markers = MARKERS[:1]
     hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])), np.array([2.0, -1.0, 0.5]),
                               np.array([m.offset for m in markers]), offsets, np.zeros((6, 6)))
-    campaign = simulate_pose_campaign(robot, markers, hidden, 15, 20e-6, seed=1, coordinates=q)
+    return simulate_pose_campaign(robot, markers, hidden, 15, 20e-6, seed=1, coordinates=q)
+
+
+@pytest.mark.parametrize("wrist_deg", [-7.5, 7.5])
+def test_two_offsets_the_campaign_does_not_tell_apart_are_named_cancelling(wrist_deg):
+    """A UR10 whose forearm keeps its direction over the campaign (shoulder_lift + elbow and
+    shoulder_pan held within 0.03 rad, 15 poses, one marker, 20 um): opposite zero offsets
+    on the parallel elbow and wrist_1 axes move the wrist by one translation, which the
+    measuring frame takes, so the fit trades one for the other. Hidden +8 and -7.5 deg: both
+    beyond the limit and named as cancelling, with their correlation, which a finite-difference
+    Jacobian of the model's predictions gives too (cov = (J^T J)^-1). Hidden +8 and +7.5 deg
+    (same correlation, values that add, not cancel): beyond the limit, not cancelling."""
+    campaign = forearm_held(wrist_deg)
     d = diagnose_poses(campaign, families=["joint_offsets"], max_steps=0)
     p, fit = d.plausibility, d.final
     assert {b.parameter for b in p.turned} == {"elbow_joint zero", "wrist_1_joint zero"}
@@ -295,3 +307,48 @@ def test_a_base_tilt_beyond_a_few_degrees_is_implausible(tilt_deg):
     assert record["beyond_angles"][0]["limit"] == pytest.approx(np.radians(5.0))
     assert any(line.startswith("IMPLAUSIBLE ANGLES") and "base tilt rx" in line
                for line in format_pose_report(d).splitlines())
+
+
+@pytest.mark.parametrize("forced", [False, True])
+def test_diagnose_refuses_offsets_that_cancel_unless_forced(forced):
+    """The forearm-held UR10 with its elbow and wrist_1 zeros +8 and -7.5 deg off (a pair the
+    campaign does not tell apart, :func:`forearm_held`), joint_offsets the only family the
+    search may try: its fit explains the poses to the 20 um noise (chi-square p > 0.05, the
+    forced fit's) with both zeros beyond 5 deg and cancelling. A search names no such family
+    (until 6 December 2026 it named it and only warned): it is refused before it is judged
+    held out, and the stop reason, the families not added, ``best_rejected`` and the
+    verdict's model say so; forced (``--families``), it is named and the verdict warns."""
+    others = [f for f in CANDIDATES["known"] if f != "joint_offsets"]
+    d = diagnose_poses(forearm_held(-7.5), families=["joint_offsets"] if forced else [],
+                       not_families=others)
+    record, report = d.to_dict(), format_pose_report(d)
+    if forced:
+        assert d.families[-1] == "joint_offsets" and d.gof() > 0.05
+        assert not d.plausibility.plausible and len(d.plausibility.cancelling) == 1
+        assert "IMPLAUSIBLE ANGLES" in report and "refused" not in report
+        return
+    assert d.families == ["frame", "markers"] and record["families"] == ["frame", "markers"]
+    why = d.not_judged["joint_offsets"]
+    assert why.startswith("unphysical: its fit turns elbow_joint zero +0.14 rad (+8")
+    assert "wrist_1_joint zero -0.131 rad (-7.5" in why
+    assert "elbow_joint zero and wrist_1_joint zero (+8 and -7.5 deg) cancel" in why
+    assert d.stop_reason.startswith(PoseSearch.stops[Stop.REFUSED])
+    assert f"joint_offsets not judged: {why}" in d.stop_reason
+    assert record["best_rejected"]["candidate"] == "joint_offsets"
+    assert record["best_rejected"]["not_judged"] == why and record["not_judged"] == {
+        "joint_offsets": why}
+    assert f"joint_offsets ({why})" in report and "IMPLAUSIBLE ANGLES" not in report
+    assert d.plausibility.plausible
+
+
+def test_a_step_records_the_family_it_refused_and_the_search_goes_on():
+    """The same UR10, every family tried: joint_offsets, best by BIC, is refused in the step
+    (the step's ``refused``, in ``--json`` and the steps table) and another family is added
+    in its place; no angle of the final model is beyond its limit."""
+    d = diagnose_poses(forearm_held(-7.5))
+    record, report = d.to_dict(), format_pose_report(d)
+    step = record["steps"][1]
+    assert step["family"] != "joint_offsets" and "joint_offsets" not in d.families
+    assert step["refused"]["joint_offsets"].startswith("unphysical: its fit turns elbow_joint")
+    assert f"step 1 refused joint_offsets: {step['refused']['joint_offsets']}" in report
+    assert d.plausibility.turned == () and record["plausibility"]["beyond_angles"] == []

@@ -609,6 +609,11 @@ class DeflectionSearch:
     def split_confused(self, c: Found) -> None:
         """None: a deflection effect's parameters are only settled (:meth:`settle`)."""
 
+    def unphysical(self, fit: Fit) -> None:
+        """None: a deflection effect's values beyond its physical scale make it a stand-in
+        (:func:`~stiffness.calibration.naming.is_stand_in`, said in the report), not a
+        refusal."""
+
     def held_out(self, named: Iterator[Found]) -> Iterator[Found]:
         """All cross-validated together over the folds (NaN without folds)."""
         tried = list(named)

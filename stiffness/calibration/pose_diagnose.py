@@ -54,6 +54,7 @@ from stiffness.calibration.pose_fit import (
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
+from stiffness.calibration.pose_plausibility import unphysical_angles
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -487,7 +488,10 @@ class PoseSearch:
         Stop.NAMED: ("the families that improve BIC determine none of their parameters within "
                      "its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
-                        "error")}
+                        "error"),
+        Stop.REFUSED: ("the families that improve BIC fit angles no robot is off by (a zero "
+                       "offset or turn beyond a few degrees, or a pair that cancel), so none "
+                       "is named")}
 
     @property
     def noise(self) -> Noise | None:
@@ -590,6 +594,11 @@ class PoseSearch:
         return split_confused(self.campaign, c.fit, self.chosen + [c.effect], self.judge,
                               self.scale)
 
+    def unphysical(self, fit: PoseFit) -> str | None:
+        """:func:`~stiffness.calibration.pose_plausibility.unphysical_angles` of ``fit``, the
+        forced families' angles only warned about (the verdict)."""
+        return unphysical_angles(fit, {s.effect for s in self.steps if s.forced})
+
     def held_out(self, named: Iterator[Family]) -> Iterator[Family]:
         """Computed as needed, in order; a family that did not win and that the campaign
         cannot validate (infinite) is rejected and never tried again."""
@@ -633,9 +642,11 @@ class PoseSearch:
                 for f, d in self.delta.items() if f in self.not_judged or f not in fitted}
 
     def reject(self, ranking: list[Family]) -> None:
-        """The step's families rejected; one past the margin on its screen alone, not fitted
-        (others were), said so: its screened change is no verdict."""
+        """The step's families rejected; one refused as unphysical (:meth:`unphysical`) said
+        so, and one past the margin on its screen alone, not fitted (others were): its
+        screened change is no verdict."""
         self.rejected.update(self.delta)
+        self.not_judged.update({c.effect: c.refused for c in ranking if c.refused is not None})
         fitted = {c.effect for c in ranking}
         for f, d in self.delta.items():
             if d < -BIC_MARGIN and f not in fitted and f not in self.not_judged:

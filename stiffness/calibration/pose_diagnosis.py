@@ -156,7 +156,8 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
                 "steps": [{"family": s.effect, "rms": s.fit.rms() / lu,
                            "delta_bic": s.delta_bic, "cv_rms": s.cv_rms / lu,
                            "n_parameters": s.fit.n_fitted, "converged": s.fit.converged,
-                           "forced": s.forced, "removed": s.removed, **self._named(s),
+                           "forced": s.forced, "removed": s.removed, "refused": s.refused,
+                           **self._named(s),
                            **({"validation": s.validation} if s.validation else {})}
                           for s in self.steps],
                 "rejected": self.rejected, "not_judged": self.not_judged,

@@ -49,6 +49,7 @@ SI throughout; the text in the campaign's length unit where it quotes the files.
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -202,15 +203,10 @@ class Plausibility:
 
     def angle_verdict(self) -> str:
         """The angles beyond their limits, the pairs that cancel, and what to do."""
-        quoted = ", ".join(b.text() for b in self.turned[:QUOTED])
-        more = len(self.turned) - QUOTED
-        limit = max(b.limit for b in self.turned)
-        cancel = "".join(f"; {c.text()}" for c in self.cancelling)
-        return (f"the fit turns {quoted}" + (f" (and {more} more)" if more > 0 else "")
-                + f", beyond the {math.degrees(limit):.3g} deg an encoder zero, a joint axis "
-                f"or a level base is off by{cancel}; poses that move these joints over more of "
-                "their range tell such parameters apart, or the model's zero or axis differs "
-                "from the robot's (check the joint's zero and sign)")
+        return (f"the fit turns {_turned_text(self.turned, self.cancelling)}; poses that move "
+                "these joints over more of their range tell such parameters apart, or the "
+                "model's zero or axis differs from the robot's (check the joint's zero and "
+                "sign)")
 
     def length_verdict(self) -> str:
         """``NOT A CALIBRATION``: the lengths and spread (module docstring)."""
@@ -308,6 +304,38 @@ def _cancelling(fit: PoseFit, turned: tuple[Beyond, ...]) -> tuple[Cancelling, .
             if abs(rho) > CANCEL_CORRELATION and rho * x[i] * x[j] > 0:
                 out.append(Cancelling((labels[i], labels[j]), (float(x[i]), float(x[j])), rho))
     return tuple(out)
+
+
+def _turned_text(turned: tuple[Beyond, ...], cancelling: tuple[Cancelling, ...]) -> str:
+    """The angles ``turned`` beyond their limits (the first :data:`QUOTED`) and the pairs
+    that cancel, as the verdict and a search's refusal quote them."""
+    quoted = ", ".join(b.text() for b in turned[:QUOTED])
+    more = len(turned) - QUOTED
+    limit = max(b.limit for b in turned)
+    cancel = "".join(f"; {c.text()}" for c in cancelling)
+    return (quoted + (f" (and {more} more)" if more > 0 else "")
+            + f", beyond the {math.degrees(limit):.3g} deg an encoder zero, a joint axis or a "
+            f"level base is off by{cancel}")
+
+
+def unphysical_angles(fit: PoseFit, forced: Collection[str] = ()) -> str | None:
+    """Why diagnose's search may not name ``fit`` (one line,
+    :meth:`~stiffness.calibration.pose_diagnose.PoseSearch.unphysical`): an angle of a family
+    not ``forced`` (``diagnose --families``, whose values the verdict only warns about)
+    beyond its family's limit, or in a pair of angles that cancel (module docstring); the
+    angles named as the verdict names them. ``None`` when there is none."""
+    turned = _turned(fit)
+    if not turned:
+        return None
+    family = {p.label: p.family for p in fit.model.parameters}
+    pairs = tuple(c for c in _cancelling(fit, turned)
+                  if any(family[a] not in forced for a in c.parameters))
+    paired = {a for c in pairs for a in c.parameters}
+    named = tuple(b for b in turned if family[b.parameter] not in forced or b.parameter in paired)
+    if not named:
+        return None
+    return (f"unphysical: its fit turns {_turned_text(named, pairs)}, and a named family's "
+            "values are physical ones (docs/absolute-poses.md, Implausible angles)")
 
 
 def _declared_unit(declared: np.ndarray, fitted: np.ndarray, units: Units

@@ -8,9 +8,11 @@ the step's overdispersion (:func:`ranked`). Of those improving BIC by more than
 the first :data:`~stiffness.calibration.selection.CV_TOP` that may be named as fitted and once
 their undetermined parameters are held at nominal (:mod:`stiffness.calibration.naming`) are
 judged held out, and the first whose held-out RMS beats the current model's is added; else the
-search stops and says why (:class:`Stop`, in the kind's words; a candidate the kind's rows
-cannot judge held out, ``refused``, is never added, and the first such one's reason ends the
-stop reason).
+search stops and says why (:class:`Stop`, in the kind's words). A candidate the kind refuses,
+``refused``, is never added, and the first such one's reason ends the stop reason: one whose
+fit has values no robot has (:meth:`SearchKind.unphysical`: a pose fit's zero offsets or turns
+beyond a few degrees, or a pair of them that cancel; refused before it is judged held out,
+whatever its BIC), or one the kind's rows cannot judge held out.
 
 Then backward elimination (:func:`eliminate`): a greedy search can keep an effect that a later
 one made redundant (an early stand-in for what the later ones model). The final fit is refitted
@@ -19,7 +21,8 @@ another one acts through: :meth:`SearchKind.removable`); those whose removal low
 than :data:`~stiffness.calibration.selection.BIC_MARGIN` under the same overdispersion rule
 (:func:`~stiffness.calibration.selection.step_criteria`, the final fit as the current model)
 are judged held out in BIC order, the first :data:`~stiffness.calibration.selection.CV_TOP`,
-and the first whose held-out RMS is not above the final's is removed
+and the first whose held-out RMS is not above the final's and whose refit the kind does not
+call unphysical (:meth:`SearchKind.unphysical`) is removed
 (:meth:`SearchKind.remove`, recorded as a :class:`Step` marked ``removed``), and so on until
 none is. The stop reason then says what was removed after the forward search stopped. The
 refits of the last final are kept (:attr:`SearchKind.removals`): how sure the diagnosis is
@@ -93,8 +96,9 @@ class Candidate(Generic[E, F]):
     BIC and change from the current model's (the step's ranking: of the fit in full, even
     when ``settled``, ``fit`` then holding undetermined parameters at nominal), the parameter
     count that BIC penalises (``params``, of the fit given, the ranked one: a later settled
-    ``fit`` counts fewer) and its held-out RMS (m) once judged, or why the rows cannot judge
-    it (``refused``: then never added; one configuration's rows,
+    ``fit`` counts fewer) and its held-out RMS (m) once judged, or why the kind refuses it
+    (``refused``: then never added; its fit unphysical, :meth:`SearchKind.unphysical`, or
+    one configuration's rows cannot judge it,
     :func:`~stiffness.calibration.selection.row_support`); whether it may be named, once the
     step's winner was looked for (``namable``; ``None``: not looked at, :func:`_named`)."""
 
@@ -147,6 +151,10 @@ class Step(Generic[E, F]):
         The step's candidates passed over without a held-out verdict, by label, and why
         (:func:`not_judged`, added by :func:`search`; a pose step's also an infinite
         held-out RMS, or a family screened but not fitted).
+    refused
+        The step's candidates the kind refused before the winner (:attr:`Candidate.refused`:
+        unphysical, or the rows cannot judge them), by label, and why (added by
+        :func:`search`; also in ``not_judged``).
     """
 
     effect: E
@@ -160,6 +168,7 @@ class Step(Generic[E, F]):
     forced: bool = False
     removed: bool = False
     not_judged: dict[str, str] = field(default_factory=dict)
+    refused: dict[str, str] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
@@ -180,7 +189,7 @@ class Stop(enum.Enum):
     BIC = "no candidate past the BIC margin"
     NAMED = "none of those may be named"
     HELD_OUT = "none of those beats the held-out error"
-    REFUSED = "the rows cannot judge any of those held out"
+    REFUSED = "the kind refuses all of those (unphysical, or its rows cannot judge them)"
 
 
 #: The words in :func:`search`'s stop reason when ``max_steps`` cut the forward search
@@ -263,6 +272,12 @@ class SearchKind(Protocol[E, F]):
         the data confuse some of them with one another, ``c.fit`` with, of each such pair, the
         one whose holding costs the fit least held at nominal; ``None`` when none are."""
 
+    def unphysical(self, fit: F) -> str | None:
+        """Why ``fit`` may not end the search though the data determine it (one line: values
+        no robot has, in what the search chose, not in what the user forced), ``None`` when
+        it may. A candidate so refused is never judged held out nor added, nor a removal's
+        refit kept (:func:`search`)."""
+
     def held_out(self, named: Iterator[Candidate[E, F]]) -> Iterator[Candidate[E, F]]:
         """The ``named`` candidates in order, each with its held-out RMS ``cv_rms`` (m)."""
 
@@ -343,6 +358,8 @@ def _forward(kind: SearchKind[E, F], current: F, cv_current: float, max_steps: i
                 f"; {label(c.effect)} not judged: {c.refused}" for c in refused[:1])
         current, cv_current = kind.accept(current, winner, ranking), winner.cv_rms
         kind.steps[-1].not_judged.update(not_judged(ranking))
+        kind.steps[-1].refused.update({label(c.effect): c.refused for c in refused
+                                       if c.refused is not None})
         added += 1
 
 
@@ -360,8 +377,8 @@ def eliminate(kind: SearchKind[E, F], final: F, cv_final: float) -> tuple[F, lis
             final.terms(), [out.fits[i].terms() for i in which], kind.n, kind.sigma)
         delta = {i: b - base for i, b in zip(which, bics, strict=True)}
         eligible = sorted((i for i in which if delta[i] < -BIC_MARGIN), key=delta.__getitem__)
-        drop = next((i for i in eligible[:CV_TOP] if _not_worse(
-            out.held_out(kind, [i])[0], cv_final)), None)
+        drop = next((i for i in eligible[:CV_TOP] if kind.unphysical(out.fits[i]) is None
+                     and _not_worse(out.held_out(kind, [i])[0], cv_final)), None)
         if drop is None:
             return final, removed
         final, cv_final = out.fits[drop], out.cv_rms[drop]
@@ -380,20 +397,43 @@ def _not_worse(cv: float, cv_final: float) -> bool:
 def _winner(kind: SearchKind[E, F], ranking: list[Candidate[E, F]], cv_current: float
             ) -> tuple[Candidate[E, F] | None, Stop, list[Candidate[E, F]]]:
     """The step's winner (a held-out RMS ``cv_current`` not known, NaN, holds none back), or
-    ``None`` and why; and the candidates the rows could not judge (``refused``), in order."""
+    ``None`` and why; and the candidates refused (:attr:`Candidate.refused`: unphysical, or
+    the rows could not judge them), in order."""
     eligible = [c for c in ranking if c.delta_bic < -BIC_MARGIN]
     if not eligible:
         return None, Stop.BIC, []
-    why, refused = Stop.NAMED, []
-    for c in kind.held_out(itertools.islice((c for c in eligible if _named(kind, c)), CV_TOP)):
+    refused: list[Candidate[E, F]] = []
+    judged = False
+    named = itertools.islice((c for c in eligible if _named(kind, c)), CV_TOP)
+    for c in kind.held_out(_physical(kind, named, refused)):
         if c.refused is not None:
             refused.append(c)
-            why = Stop.REFUSED if why is Stop.NAMED else why
             continue
-        why = Stop.HELD_OUT
+        judged = True
         if c.cv_rms is not None and (c.cv_rms < cv_current or math.isnan(cv_current)):
-            return c, why, refused
-    return None, why, refused
+            return c, Stop.HELD_OUT, _in_order(refused, ranking)
+    why = Stop.HELD_OUT if judged else Stop.REFUSED if refused else Stop.NAMED
+    return None, why, _in_order(refused, ranking)
+
+
+def _physical(kind: SearchKind[E, F], named: Iterator[Candidate[E, F]],
+              refused: list[Candidate[E, F]]) -> Iterator[Candidate[E, F]]:
+    """The ``named`` candidates whose fit the kind does not call unphysical; the others
+    ``refused`` (:meth:`SearchKind.unphysical`, why), added to ``refused`` and never judged
+    held out."""
+    for c in named:
+        c.refused = kind.unphysical(c.fit)
+        if c.refused is None:
+            yield c
+        else:
+            refused.append(c)
+
+
+def _in_order(cs: list[Candidate[E, F]], ranking: list[Candidate[E, F]]
+              ) -> list[Candidate[E, F]]:
+    """``cs`` in the order of ``ranking`` (BIC)."""
+    place = {id(c): k for k, c in enumerate(ranking)}
+    return sorted(cs, key=lambda c: place[id(c)])
 
 
 def _named(kind: SearchKind[E, F], c: Candidate[E, F]) -> bool:
@@ -424,7 +464,7 @@ NOT_NAMABLE = "it may not be named: no parameter determined with its 95 % interv
 
 def not_judged(ranking: Sequence[Candidate[E, F]]) -> dict[str, str]:
     """The candidates of a step's ``ranking`` passed over unjudged held out, by label, and
-    why: the rows cannot judge them (:attr:`Candidate.refused`) or they may not be named
+    why: the kind refuses them (:attr:`Candidate.refused`) or they may not be named
     (:data:`NOT_NAMABLE`) (a :class:`Step`'s ``not_judged``)."""
     return {label(c.effect): c.refused if c.refused is not None else NOT_NAMABLE
             for c in ranking if c.refused is not None or c.namable is False}

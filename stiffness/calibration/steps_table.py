@@ -36,7 +36,9 @@ def scored_steps(d: dict) -> list[dict]:
 def step_lines(d: dict, notes: list[str]) -> list[str]:
     """The text table of :func:`scored_steps`: effect, ``where`` (deflection), parameter count
     (pose), RMS, dBIC, held-out RMS (null: ``unbounded`` for a pose step, ``-`` for a
-    deflection step) and any validation RMS; then ``notes``, the forced steps and ``--not``."""
+    deflection step) and any validation RMS; then ``notes``, the forced steps, ``--not`` and
+    the candidates a step refused before it added its own (a step's ``refused``: what and
+    why)."""
     steps, unit = scored_steps(d), d["unit"]
     where, counted = (any(k in s for s in steps) for k in ("where", "n_parameters"))
     rows = _aligned([["step", "effect".ljust(18), *["where"][:where], *["params"][:counted],
@@ -55,7 +57,9 @@ def step_lines(d: dict, notes: list[str]) -> list[str]:
     return [*rows, *notes,
             *(["* forced (--families): added first, whatever its BIC and held-out error"]
               if any(s.get("forced") for s in steps) else []),
-            *([f"not tried (--not): {', '.join(forbidden)}"] if forbidden else [])]
+            *([f"not tried (--not): {', '.join(forbidden)}"] if forbidden else []),
+            *(f"step {i} refused {what}: {why}" for i, s in enumerate(steps)
+              for what, why in (s.get("refused") or {}).items())]
 
 
 def _number(v: float | None, null: str = "") -> str:
