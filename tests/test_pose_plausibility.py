@@ -12,6 +12,7 @@ calibration: nothing said.
 from __future__ import annotations
 
 import csv
+import html
 import json
 import shutil
 import warnings
@@ -31,11 +32,13 @@ from stiffness.calibration.pose_diagnose import CANDIDATES, PoseSearch, diagnose
 from stiffness.calibration.pose_fit import rows_of
 from stiffness.calibration.pose_identify import identify_poses
 from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_page import render_pose_diagnosis
 from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.calibration.search import Stop
 from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.provenance import provenance
 from stiffness.robot.calibration import read_pose_calibration
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
@@ -351,4 +354,6 @@ def test_a_step_records_the_family_it_refused_and_the_search_goes_on():
     assert step["family"] != "joint_offsets" and "joint_offsets" not in d.families
     assert step["refused"]["joint_offsets"].startswith("unphysical: its fit turns elbow_joint")
     assert f"step 1 refused joint_offsets: {step['refused']['joint_offsets']}" in report
+    page = html.unescape(render_pose_diagnosis(record, None, provenance("test")))
+    assert f"<p>Step 1 refused joint_offsets: {step['refused']['joint_offsets']}</p>" in page
     assert d.plausibility.turned == () and record["plausibility"]["beyond_angles"] == []

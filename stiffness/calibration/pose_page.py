@@ -151,6 +151,8 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
              heading("provenance", SECTIONS), provenance_block(prov),
              heading("steps", SECTIONS)]
     parts.append(steps_table(d["steps"], unit))
+    parts += [f"<p>Step {i} refused {esc(what)}: {esc(why)}</p>" for i, step in
+              enumerate(d["steps"]) for what, why in (step.get("refused") or {}).items()]
     if d["rejected"]:
         parts.append("<p>Not added (ΔBIC or held-out RMS): "
                      + esc(not_added(d["rejected"], d.get("not_judged", {}))) + "</p>")
