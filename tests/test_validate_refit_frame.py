@@ -53,6 +53,9 @@ def days(tmp_path_factory):
                       day_a.loads)
     fit = fit_pose_model(model, day_a, rows_of(model, day_a), FAMILIES)
     stiffness.write_pose_campaign(day_b, root / "b")
+    for row in (3, 11):  # ghosts: the tracker took another marker for the tip
+        day_b.positions[row, 0] += np.array([0.3, -0.2, 0.1])
+    stiffness.write_pose_campaign(day_b, root / "ghosts")
     return write_pose_model(fit, day_a, root / "model.json"), root / "b"
 
 
@@ -89,3 +92,15 @@ def test_the_report_says_the_error_is_the_frame(days, capsys):
     out = capsys.readouterr().out
     assert "measuring frame and marker offsets fitted to this campaign" in out
     assert "(12 parameters)" in out
+
+
+def test_ghost_markers_do_not_move_the_frame_fitted(days):
+    """Two of day B's 15 rows with the tip 0.37 m off (FIGAROH's TIAGo campaigns have such
+    ghosts, 0.2-1 m): the frame fitted is still the simulated motion to 1e-4 rad and 0.2 mm
+    (least squares moved it by centimetres), and those two rows are the ones flagged."""
+    model, campaign = days
+    fitted = stiffness.validate(model, campaign.parent / "ghosts", refit=("frame",)).to_dict()
+    frame = fitted["frame_refit"]
+    assert np.allclose(np.radians(frame["rotation_deg"]), TURN, atol=1e-4)
+    assert np.allclose(frame["translation"], SHIFT, atol=2e-4)
+    assert sorted({o["row"] for o in fitted["outliers"]}) == [4, 12]
