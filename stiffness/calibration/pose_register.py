@@ -37,11 +37,12 @@ def refit_frame(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
                 families: tuple[str, ...] = ("frame",)) -> tuple[np.ndarray, dict]:
     """``x`` (p,) with the parameters of ``families`` (``frame``, and ``markers`` for a
     marker plate mounted again) refitted to ``campaign``'s seen positions (iteratively
-    reweighted least squares, soft_l1's weights: module docstring), the others held, and the registration: ``parameters`` (how many were refitted, the
-    identifiable ones), ``translation`` (3,) and
-    ``rotation_deg`` (3,), the rotation vector, of the motion taking the model's measuring
-    frame to the refitted one (``y' = D y + d`` for every point ``y`` the model predicts,
-    ``translation`` ``d`` in m), ``iterations`` and ``rms`` (m, the 3-D error after it).
+    reweighted least squares, soft_l1's weights: module docstring), the others held, and the
+    registration: ``parameters`` (how many were refitted, the identifiable ones),
+    ``translation`` (3,) and ``rotation_deg`` (3,), the rotation vector, of the motion taking
+    the model's measuring frame to the refitted one (``y' = D y + d`` for every point ``y``
+    the model predicts, ``translation`` ``d`` in m), ``iterations`` and ``rms`` (m, the 3-D
+    error after it).
 
     Raises
     ------
