@@ -12,6 +12,8 @@ fitted is the one simulated (an independent closed form: ``D = R_B R_A^T``,
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -21,6 +23,7 @@ from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_fra
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.cli.main import main
+from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 
@@ -104,3 +107,25 @@ def test_ghost_markers_do_not_move_the_frame_fitted(days):
     assert np.allclose(np.radians(frame["rotation_deg"]), TURN, atol=1e-4)
     assert np.allclose(frame["translation"], SHIFT, atol=2e-4)
     assert sorted({o["row"] for o in fitted["outliers"]}) == [4, 12]
+
+
+def test_a_campaign_of_some_of_the_model_markers_is_validated(days, tmp_path):
+    """Day B measuring the tip alone (the elbow marker fallen off) was refused ('validate
+    with the same markers'); now the elbow is unseen: the tip's errors are those of the
+    campaign with both, the elbow never seen, the chi-square on the tip's components. A
+    campaign marker the model lacks is still refused."""
+    model, campaign = days
+    both = stiffness.validate(model, campaign, refit=("frame",)).to_dict()
+    c = stiffness.load_pose_campaign(campaign)
+    tip = dataclasses.replace(c, markers=c.markers[:1], positions=c.positions[:, :1])
+    alone = stiffness.validate(model, tip).to_dict()
+    plain = stiffness.validate(model, campaign).to_dict()
+    assert alone["markers"]["tip"]["rms"] == pytest.approx(plain["markers"]["tip"]["rms"],
+                                                           rel=1e-12)
+    assert alone["markers"]["elbow"]["rms"] is None and alone["dof"] == 3 * c.n_rows
+    refitted = stiffness.validate(model, tip, refit=("frame",)).to_dict()
+    assert refitted["verdict"] == both["verdict"] == "consistent with the noise"
+    other = dataclasses.replace(c, markers=[dataclasses.replace(c.markers[0], name="probe"),
+                                            c.markers[1]])
+    with pytest.raises(StiffnessError, match="marker 'probe' .* is not a marker of the model"):
+        stiffness.validate(model, other)

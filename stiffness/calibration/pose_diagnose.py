@@ -771,17 +771,19 @@ def _on_campaign(model: PoseModel, campaign: PoseCampaign) -> tuple[PoseModel, P
 
 
 def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
-    """``campaign`` with its markers in the model's order (same names and frames required)."""
+    """``campaign`` with its markers in the model's order, one of the model's it does not
+    measure unseen on every row (fallen off, or left out, on another day); one the model lacks,
+    or on another frame, is refused."""
     given = {m.name: k for k, m in enumerate(campaign.markers)}
-    for m in fitted:
-        if m.name not in given or campaign.markers[given[m.name]].frame != m.frame:
-            raise StiffnessError(f"marker {m.name!r} (on {m.frame}) of the model is not a marker "
-                                 f"of the campaign ({', '.join(given)}); validate on a campaign "
-                                 "with the model's markers")
-    if len(given) != len(fitted):
-        raise StiffnessError(f"the campaign has markers {list(given)}, the model "
-                             f"{[m.name for m in fitted]}: validate with the same markers")
-    order = [given[m.name] for m in fitted]
-    return replace(campaign, markers=list(fitted), positions=campaign.positions[:, order],
-                   rotations=None if campaign.rotations is None
-                   else campaign.rotations[:, order])
+    model = {m.name: m.frame for m in fitted}
+    for m in campaign.markers:
+        if model.get(m.name) != m.frame:
+            raise StiffnessError(f"marker {m.name!r} (on {m.frame}) of the campaign is not a "
+                                 f"marker of the model ({', '.join(model)}); validate on a "
+                                 "campaign of the model's markers")
+
+    def pick(values: np.ndarray) -> np.ndarray:
+        return np.stack([values[:, given[m.name]] if m.name in given
+                         else np.full(values[:, 0].shape, np.nan) for m in fitted], axis=1)
+    return replace(campaign, markers=list(fitted), positions=pick(campaign.positions),
+                   rotations=None if campaign.rotations is None else pick(campaign.rotations))
