@@ -1,9 +1,12 @@
 """Backward elimination in the one selection loop (:func:`stiffness.calibration.search.
 eliminate`) for a deflection campaign: an effect the final model is better without is removed
 and recorded as a step marked ``removed`` (the pose kind's campaign, where the greedy search
-adds a stand-in by itself: ``tests/test_pose_selection.py``)."""
+adds a stand-in by itself: ``tests/test_pose_selection.py``); and, on a stub kind, that a
+removal whose refit the kind calls unphysical is not made."""
 
 from __future__ import annotations
+
+import math
 
 import pytest
 
@@ -125,3 +128,58 @@ def test_an_effect_acting_through_a_spring_goes_with_it():
     lines = [line for line in format_report(d).splitlines() if "best alternative" in line]
     assert len(lines) == 2 and all(line.endswith("; not chosen: worse BIC)") for line in lines)
     assert all(line.count("held-out RMS") == 1 for line in lines)  # the removal's
+
+
+class _Fit:
+    """A fit as the loop reads it: its objective and parameter count (m^2, count)."""
+
+    def __init__(self, rss: float, p: int) -> None:
+        self.rss, self.p = rss, p
+
+    def terms(self) -> tuple[float, int]:
+        return self.rss, self.p
+
+
+class _Kind:
+    """A campaign kind whose final fit (RSS 100 m^2, 10 parameters, n 100, noise 1 m) adds
+    ``a`` and ``b``; without ``a`` RSS 101, without ``b`` 102, 8 parameters each, the same
+    held-out RMS; ``unphysical`` names the refits it refuses."""
+
+    n, sigma = 100, 1.0
+
+    def __init__(self, unphysical: set[str]) -> None:
+        self.final = _Fit(100.0, 10)
+        self.refits = {"a": _Fit(101.0, 8), "b": _Fit(102.0, 8)}
+        self.refused = {id(self.refits[e]): f"{e} removed: unphysical" for e in unphysical}
+        self.steps: list = []
+        self.removals = None
+
+    def removable(self, final):
+        return [True, True] if final is self.final else []
+
+    def without(self, final):
+        return [self.refits["a"], self.refits["b"]]
+
+    def held_out_of(self, fits):
+        return [1.0 for _ in fits]
+
+    def unphysical(self, fit):
+        return self.refused.get(id(fit))
+
+    def remove(self, final, index, fit):
+        return "ab"[index]
+
+
+@pytest.mark.parametrize("unphysical", [set(), {"b"}, {"a"}, {"a", "b"}])
+def test_a_removal_whose_refit_is_unphysical_is_not_made(unphysical):
+    """Both removals lower BIC past the margin (by 9.21 - 1/c and 9.21 - 2/c, c = 100/90 the
+    final fit's overdispersion) at the same held-out RMS: the one without ``a`` (BIC lowest) is
+    made, unless the kind calls its refit unphysical (:meth:`SearchKind.unphysical`); then the
+    one without ``b``; neither when both are."""
+    kind = _Kind(unphysical)
+    c = 100.0 / 90.0
+    assert 2 * math.log(100) - 2 / c > BIC_MARGIN
+    final, removed = eliminate(kind, kind.final, 1.0)
+    expected = [e for e in "ab" if e not in unphysical][:1]
+    assert removed == expected
+    assert final is (kind.refits[expected[0]] if expected else kind.final)
