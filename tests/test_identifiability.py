@@ -359,3 +359,35 @@ def test_a_merge_reads_as_what_the_merged_parameter_does():
     d = Dropped(0, "merged", ((1, -185.0), (2, 1.96)))
     assert d.describe(["torso_lift_joint compliance", "frame z", "frame y"]) == (
         "merged: acts on the data as -185 x frame z + 1.96 x frame y (SI units, per unit of it)")
+
+
+def test_a_merge_through_a_held_column_says_it_is_not_fitted():
+    """FIGAROH's TALOS left arm (18 poses, geometry): arm_left_4_joint placement y was
+    reported 'merged: acts on the data as -504 x arm_left_4_joint placement z + 504 x
+    arm_left_3_joint placement z', the first then held as undetermined: the combination is not
+    fitted and neither is it. Columns a, b and c = 2 a - b (random, 20 rows): one merges into
+    the two kept with the coefficients least squares gives (the independent computation); one
+    of those held, the merged one's clause names it and says it is held at its nominal value,
+    JSON through_held."""
+    from stiffness.calibration.identifiability import reduce_columns
+    from stiffness.elastic.effects.base import Held
+
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=20), rng.normal(size=20)
+    columns = np.column_stack([a, b, 2 * a - b])
+    ident = reduce_columns(columns, [[0, 1, 2]], np.ones(3))
+    (merged,) = ident.dropped
+    kept = sorted(ident.kept)
+    coefficients, *_ = np.linalg.lstsq(columns[:, kept], columns[:, merged.index], rcond=None)
+    assert dict(merged.merged_into) == pytest.approx(dict(zip(kept, coefficients)), abs=1e-9)
+    labels = ["a", "b", "c"]
+    assert merged.describe(labels).startswith("merged: acts on the data as")
+    held = ident.holding({kept[0]: Held("held at its nominal value: the data do not "
+                                        "determine it")})
+    clause = held.dropped_at(merged.index).describe(labels)
+    assert "acts on the data" not in clause
+    assert f"with {labels[kept[0]]}, held at its nominal value" in clause
+    assert clause.endswith("not fitted, held at its nominal value too")
+    entry = next(d for d in held.to_dict(labels)["dropped"]
+                 if d["parameter"] == labels[merged.index])
+    assert entry["through_held"] == [labels[kept[0]]]

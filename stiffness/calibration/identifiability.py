@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import linalg
@@ -88,12 +88,19 @@ class Dropped:
         parameters absorb ``coefficient x`` this one (in their own units).
     held
         For an undetermined parameter: why, and what takes its share.
+    through_held
+        For a merged parameter: the columns of its combination held afterwards as
+        undetermined (:meth:`Identifiability.holding`): the combination is not fitted, it
+        stays at its nominal value (FIGAROH's TALOS left arm: arm_left_4_joint placement y
+        read "acts on the data as -504 x arm_left_4_joint placement z + 504 x
+        arm_left_3_joint placement z", the first held).
     """
 
     index: int
     reason: str
     merged_into: tuple[tuple[int, float], ...] = ()
     held: Held | None = None
+    through_held: tuple[int, ...] = ()
 
     def describe(self, labels: list[str]) -> str:
         """One clause: ``no effect on the data``, ``merged: acts on the data as 1 x joint2 (SI
@@ -108,6 +115,11 @@ class Dropped:
         big = max((abs(c) for _, c in self.merged_into), default=0.0)
         combo = " + ".join(f"{c:.3g} x {labels[i]}" for i, c in self.merged_into[:3]
                            if abs(c) >= 1e-3 * big)
+        if self.through_held:
+            names = ", ".join(labels[i] for i in self.through_held)
+            return (f"merged into a combination ({combo}) with {names}, held at its nominal "
+                    "value (the data do not determine it): not fitted, held at its nominal "
+                    "value too")
         return (f"merged: acts on the data as {combo} (SI units, per unit of it)" if combo
                 else "merged: absorbed as (negligible)")
 
@@ -126,9 +138,13 @@ class Identifiability:
 
     def holding(self, held: dict[int, Held]) -> Identifiability:
         """This reduction with the columns of ``held`` (column: why) dropped as
-        ``undetermined``."""
+        ``undetermined``; a merged column whose combination holds one of them says so
+        (:attr:`Dropped.through_held`)."""
         return Identifiability([i for i in self.kept if i not in held],
-                               [d for d in self.dropped if d.index not in held]
+                               [replace(d, through_held=tuple(dict.fromkeys(
+                                   (*d.through_held, *(i for i, _ in d.merged_into
+                                                       if i in held)))))
+                                for d in self.dropped if d.index not in held]
                                + [Dropped(i, "undetermined", held=why)
                                   for i, why in held.items()])
 
@@ -149,7 +165,8 @@ class Identifiability:
                                                  for label, r in (d.held.confounded_with
                                                                   if d.held else ())],
                              "merged_into": [{"parameter": labels[i], "coefficient": c}
-                                             for i, c in d.merged_into]}
+                                             for i, c in d.merged_into],
+                             "through_held": [labels[i] for i in d.through_held]}
                             for d in self.dropped]}
 
 
