@@ -379,7 +379,8 @@ def test_a_merge_through_a_held_column_says_it_is_not_fitted():
     (merged,) = ident.dropped
     kept = sorted(ident.kept)
     coefficients, *_ = np.linalg.lstsq(columns[:, kept], columns[:, merged.index], rcond=None)
-    assert dict(merged.merged_into) == pytest.approx(dict(zip(kept, coefficients)), abs=1e-9)
+    expected = dict(zip(kept, coefficients, strict=True))
+    assert dict(merged.merged_into) == pytest.approx(expected, abs=1e-9)
     labels = ["a", "b", "c"]
     assert merged.describe(labels).startswith("merged: acts on the data as")
     held = ident.holding({kept[0]: Held("held at its nominal value: the data do not "
