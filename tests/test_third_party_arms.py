@@ -105,3 +105,25 @@ def test_a_camera_beside_the_tool_is_not_the_target(tmp_path: Path):
     path = tmp_path / "camera.urdf"
     path.write_text(arm_urdf(sensors))
     assert load_robot(path).target_frame == "tool0"
+
+
+def test_a_path_of_another_arms_joints_is_not_called_a_model_file(tmp_path: Path):
+    """A joint path written for ABB's joint_1..6 given to KUKA's kr16 (joint_a1..a6) with
+    --robot: the message asked 'is the model file of another robot?', though no model file was
+    given. It names the path and its fix."""
+    import pytest
+
+    from stiffness.errors import FileFormatError
+    from stiffness.machining.joint_path import read_joint_path
+
+    path = tmp_path / "arm.urdf"
+    path.write_text(arm_urdf())
+    robot = load_robot(path)
+    csv = tmp_path / "path.csv"
+    csv.write_text("joint_a1,joint_a2,joint_a3,joint_a4\n0,0.2,0.1,0\n")
+    with pytest.raises(FileFormatError) as info:
+        read_joint_path(csv, robot)
+    message = str(info.value)
+    assert "model file" not in message
+    assert "a path of another robot?" in message and "joint_1, joint_2, joint_3, joint_4" \
+        in message

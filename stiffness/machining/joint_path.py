@@ -235,7 +235,7 @@ def read_joint_path(path: str | Path, robot: Robot, deg: bool = False,
         missing_q = [q for q in by_index if q not in header]
         shown = missing if len(missing) <= len(missing_q) else missing_q
         other = "" if set(header) & set(joints + by_index) else (
-            " (its columns name none of them: is the model file of another robot?)")
+            " (its columns name none of them: a path of another robot?)")
         raise FileFormatError(
             f"lacks the coordinate column(s) {', '.join(shown)} of {robot.title}{other}: name "
             f"one column per coordinate ({', '.join(joints)}, or q1..q{len(joints)})",
