@@ -127,3 +127,35 @@ def test_a_path_of_another_arms_joints_is_not_called_a_model_file(tmp_path: Path
     assert "model file" not in message
     assert "a path of another robot?" in message and "joint_1, joint_2, joint_3, joint_4" \
         in message
+
+
+def test_a_floating_or_planar_joint_inside_the_arm_is_not_sent_to_fixed_base(tmp_path: Path):
+    """A floating or planar joint between two links of the arm: the message suggested
+    --fixed-base, which fixes only the base and left the same error. It says so and names the
+    fixes that apply; a floating joint at the base is still sent to --fixed-base, which loads
+    it."""
+    import pytest
+
+    from stiffness.errors import StiffnessError
+
+    text = arm_urdf()
+    start = text.index('<joint name="joint_3"')
+    end = text.index("</joint>", start)
+    for kind in ("floating", "planar"):
+        path = tmp_path / f"{kind}.urdf"
+        path.write_text(text[:start] + text[start:end].replace('type="revolute"',
+                                                               f'type="{kind}"') + text[end:])
+        for fixed_base in (False, True):
+            with pytest.raises(StiffnessError) as info:
+                load_robot(path, fixed_base=fixed_base)
+            message = str(info.value)
+            assert "joint 'joint_3'" in message and "not the base" in message
+            assert 'type="fixed"' in message and "--fixed-base fixes" in message
+    base = tmp_path / "base.urdf"
+    base.write_text(text.replace('<link name="base_link"/>', '<link name="world"/>'
+                                 '<link name="base_link"/><joint name="free" type="floating">'
+                                 '<parent link="world"/><child link="base_link"/></joint>'))
+    with pytest.raises(StiffnessError, match="base.*with --fixed-base"):
+        load_robot(base)
+    assert load_robot(base, fixed_base=True).compliant_joints == (
+        "joint_1", "joint_2", "joint_3", "joint_4")

@@ -125,11 +125,14 @@ def free_joints(model: pin.Model, excluded: set[str]) -> list[str]:
         if joint.nv == 0 or joint_name in excluded:
             continue
         if joint.shortname() not in SUPPORTED_JOINTS:
+            fix = ("fix the base with --fixed-base, or declare it passive in a loop file"
+                   if model.parents[jid] == 0 else
+                   "it is not the base, which --fixed-base fixes: make it type=\"fixed\" in "
+                   "the URDF if it does not move, or declare it passive in a loop file")
             raise StiffnessError(
                 f"joint {joint_name!r} is a {joint.shortname()} with {joint.nv} degrees of "
-                "freedom; only revolute, continuous and prismatic joints can be coordinates "
-                "(declare it passive in a loop file, or fix the base with --fixed-base)"
-            )
+                f"freedom; only revolute, continuous and prismatic joints can be coordinates "
+                f"({fix})")
         coordinate_joints.append(joint_name)
     return coordinate_joints
 
