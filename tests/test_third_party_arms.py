@@ -159,3 +159,19 @@ def test_a_floating_or_planar_joint_inside_the_arm_is_not_sent_to_fixed_base(tmp
         load_robot(base)
     assert load_robot(base, fixed_base=True).compliant_joints == (
         "joint_1", "joint_2", "joint_3", "joint_4")
+
+
+def test_posture_without_a_wrench_names_the_flag(tmp_path: Path, capsys):
+    """`stiffness posture` without --wrench said 'give a process wrench (fx,fy,fz[,mx,my,mz]
+    in N, N.m)', naming neither the flag nor the path file's columns that give one."""
+    from stiffness.cli.main import main
+
+    path = tmp_path / "arm.urdf"
+    path.write_text(arm_urdf())
+    poses = tmp_path / "poses.csv"
+    poses.write_text("x,y,z,ax,ay,az\n0.2,0.05,0.8,1,0,0\n0.21,0.05,0.8,1,0,0\n")
+    assert main(["posture", "--robot", str(path), "--kq", "1e4,1e4,1e4,1e4", "--path",
+                 str(poses), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "--wrench fx,fy,fz" in err and "fx,fy,fz columns in the poses file" in err

@@ -564,7 +564,8 @@ def _poses_and_wrench(positions: np.ndarray | str | Path, axes: np.ndarray | Non
     if source is None:
         poses = Poses.of_arrays(positions, axes, quaternions)
     if wrench is None:
-        raise StiffnessError("give a process wrench (fx,fy,fz[,mx,my,mz] in N, N.m)")
+        raise StiffnessError("give a process wrench: --wrench fx,fy,fz[,mx,my,mz] (N, N.m; "
+                             "Python: wrench=[...]), or fx,fy,fz columns in the poses file")
     return poses, point_wrenches(wrench, m)
 
 
