@@ -31,7 +31,7 @@ from stiffness.calibration.pose_campaign import (
 from stiffness.calibration.pose_diagnose import CANDIDATES, PoseSearch, diagnose_poses
 from stiffness.calibration.pose_fit import rows_of
 from stiffness.calibration.pose_identify import identify_poses
-from stiffness.calibration.pose_model import Marker
+from stiffness.calibration.pose_model import Marker, PoseModel, one_dof_joints
 from stiffness.calibration.pose_page import render_pose_diagnosis
 from stiffness.calibration.pose_plausibility import PLACEMENT_FRACTION
 from stiffness.calibration.pose_report import format_pose_report
@@ -40,6 +40,7 @@ from stiffness.errors import DataFileWarning
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.provenance import provenance
 from stiffness.robot.calibration import read_pose_calibration
+from stiffness.robot.kinematics import reach as reach_of
 from stiffness.robot.robot import load_robot
 from stiffness.units import Units
 
@@ -357,3 +358,95 @@ def test_a_step_records_the_family_it_refused_and_the_search_goes_on():
     page = html.unescape(render_pose_diagnosis(record, None, provenance("test")))
     assert f"<p>Step 1 refused joint_offsets: {step['refused']['joint_offsets']}</p>" in page
     assert d.plausibility.turned == () and record["plausibility"]["beyond_angles"] == []
+
+
+def geometry_limits(robot, markers) -> dict[str, float]:
+    """``geometry``'s length limit (m) of each of its parameters, by label."""
+    model = PoseModel(robot, markers, ("frame", "markers", "geometry"),
+                      (np.eye(3), np.zeros(3)))
+    geometry = next(f for f in model.family_objects if f.name == "geometry")
+    return dict(zip([p.label for p in model.parameters[model.slices()["geometry"]]],
+                    geometry.plausible_lengths(model), strict=True))
+
+
+def test_placement_limits_are_the_angle_limit_over_each_link():
+    """``geometry``'s physical length limit (docs/absolute-poses.md, Implausible placements):
+    tan(5 deg) times the link that carries the joint, as the URDF draws it (the distance from
+    the previous joint; a joint at its parent's origin, its parent's link), at least a tenth
+    of the reach; NaN for the turns. UR10: wrist_1 over the 0.5723 m forearm, 50.1 mm;
+    wrist_2 over its 0.1149 m link, floored at 0.1 x 1.879 m, 16.4 mm. Panda: panda_joint2
+    at panda_joint1's origin, over joint1's 0.333 m; panda_joint6 over joint5's
+    (-0.0825, 0.384) m; panda_joint4's 82.5 mm link at the floor (0.1 x its reach, 1.4227 m)."""
+    tan5 = np.tan(np.radians(5.0))
+    limits = geometry_limits(load_robot("ur10", frame="tool0"), MARKERS)
+    reach = 0.1273 + 0.220941 + np.hypot(0.1719, 0.612) + 0.5723 + 0.1149 + 0.1157 + 0.0922
+    assert limits["wrist_1_joint placement z"] == pytest.approx(tan5 * 0.5723, rel=1e-4)
+    assert limits["wrist_1_joint placement x"] == pytest.approx(tan5 * 0.5723, rel=1e-4)
+    assert limits["elbow_joint placement x"] == pytest.approx(tan5 * np.hypot(0.1719, 0.612),
+                                                              rel=1e-4)
+    assert limits["wrist_2_joint placement x"] == pytest.approx(tan5 * 0.1 * reach, rel=1e-3)
+    assert np.isnan(limits["wrist_1_joint placement rx"])
+    panda = load_robot("panda")
+    limits = geometry_limits(panda, [Marker("tip", "panda_link7", np.zeros(3))])
+    assert limits["panda_joint2 placement x"] == pytest.approx(tan5 * 0.333, rel=1e-4)
+    assert limits["panda_joint6 placement y"] == pytest.approx(tan5 * np.hypot(0.0825, 0.384),
+                                                               rel=1e-4)
+    assert limits["panda_joint4 placement x"] == pytest.approx(tan5 * 0.1 * reach_of(panda.model))
+
+
+def test_a_placement_shifted_beyond_the_angle_limit_is_implausible_and_forced_warns():
+    """The forearm-held UR10 (+8 and -7.5 deg on elbow and wrist_1, :func:`forearm_held`)
+    with geometry forced in: the fit takes the cancelling pair in as an 81 mm shift of
+    wrist_1's placement (the elbow's 8 deg over the 0.5723 m forearm is 80 mm), beyond the
+    50.1 mm a 5 deg turn of that link moves it. It was plausible (below the unit check's tenth
+    of the reach, 188 mm) until 6 December 2026; now IMPLAUSIBLE PLACEMENTS, plausible
+    false, ``beyond_placements``; forced, the family stays named (a warning)."""
+    d = diagnose_poses(forearm_held(-7.5), families=["geometry"], max_steps=0)
+    assert d.families[-1] == "geometry"
+    p, record = d.plausibility, d.to_dict()["plausibility"]
+    assert p.lengths_plausible and p.turned == () and record["beyond"] == []
+    assert not p.plausible and record["plausible"] is False
+    shifted = record["beyond_placements"]
+    assert shifted[0]["parameter"] == "wrist_1_joint placement z"
+    assert 0.075 < shifted[0]["value"] < 0.087 and shifted[0]["unit"] == "m"
+    assert shifted[0]["limit"] == pytest.approx(np.tan(np.radians(5.0)) * 0.5723, rel=1e-4)
+    verdict = next(line for line in format_pose_report(d).splitlines()
+                   if line.startswith("IMPLAUSIBLE"))
+    assert verdict.startswith("IMPLAUSIBLE PLACEMENTS: the fit moves wrist_1_joint placement "
+                              "z +0.08")
+    assert "(limit 0.0501 m)" in verdict and "NOT A CALIBRATION" not in verdict
+
+
+def test_diagnose_refuses_the_cancelling_pair_taken_in_as_a_placement():
+    """The same UR10, every family tried: joint_offsets is refused (its angles), and geometry,
+    which took the pair in as wrist_1's 81 mm shift and was named in its place until 6
+    December 2026, is refused too (the step's ``refused``, the report's line); no placement
+    of the final model is beyond its limit."""
+    d = diagnose_poses(forearm_held(-7.5))
+    record, report = d.to_dict(), format_pose_report(d)
+    assert "geometry" not in d.families and "joint_offsets" not in d.families
+    why = record["steps"][1]["refused"]["geometry"]
+    assert why.startswith("unphysical: its fit moves wrist_1_joint placement z +0.08")
+    assert f"step 1 refused geometry: {why}" in report
+    assert record["plausibility"]["beyond_placements"] == []
+
+
+def test_honest_placement_errors_on_a_wrist_are_named():
+    """A panda (two joints at their parent's origin, two links of 83 and 88 mm under the
+    floor) whose every placement is off by up to 3 mm and 0.5 deg (uniform draws), 40 poses,
+    two markers, 20 um: diagnose names geometry, plausible, nothing refused."""
+    robot = load_robot("panda")
+    rng = np.random.default_rng(7)
+    n = len(one_dof_joints(robot.model))
+    eps = np.column_stack([rng.uniform(-3e-3, 3e-3, (n, 3)),
+                           rng.uniform(-np.radians(0.5), np.radians(0.5), (n, 3))])
+    markers = [Marker("tip", "panda_link7", np.array([0.0, 0.03, 0.15])),
+               Marker("elbow", "panda_link4", np.array([0.0, 0.05, 0.1]))]
+    hidden = HiddenPoseErrors(pin.exp3(np.array([0.1, -0.2, 1.0])), np.array([2.0, -1.0, 0.5]),
+                              np.array([m.offset for m in markers]), np.zeros(n), eps)
+    campaign = simulate_pose_campaign(robot, markers, hidden, 40, 20e-6, seed=3)
+    d = diagnose_poses(campaign)
+    record = d.to_dict()
+    assert "geometry" in d.families and d.plausibility.plausible
+    assert all("geometry" not in s["refused"] for s in record["steps"])
+    assert record["plausibility"]["beyond_placements"] == []

@@ -54,7 +54,7 @@ from stiffness.calibration.pose_fit import (
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
 from stiffness.calibration.pose_parameters import PoseJudge
-from stiffness.calibration.pose_plausibility import unphysical_angles
+from stiffness.calibration.pose_plausibility import unphysical_values
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -489,9 +489,10 @@ class PoseSearch:
                      "its physical scale with an interval excluding zero"),
         Stop.HELD_OUT: (f"no family improves BIC by more than {BIC_MARGIN:g} and the held-out "
                         "error"),
-        Stop.REFUSED: ("the families that improve BIC fit angles no robot is off by (a zero "
-                       "offset or turn beyond a few degrees, or a pair that cancel), so none "
-                       "is named")}
+        Stop.REFUSED: ("the families that improve BIC fit angles or placements no robot is "
+                       "off by (a zero offset or turn beyond a few degrees, a pair that "
+                       "cancel, or a joint shifted farther than such a turn moves it), so "
+                       "none is named")}
 
     @property
     def noise(self) -> Noise | None:
@@ -595,9 +596,9 @@ class PoseSearch:
                               self.scale)
 
     def unphysical(self, fit: PoseFit) -> str | None:
-        """:func:`~stiffness.calibration.pose_plausibility.unphysical_angles` of ``fit``, the
-        forced families' angles only warned about (the verdict)."""
-        return unphysical_angles(fit, {s.effect for s in self.steps if s.forced})
+        """:func:`~stiffness.calibration.pose_plausibility.unphysical_values` of ``fit``, the
+        forced families' values only warned about (the verdict)."""
+        return unphysical_values(fit, {s.effect for s in self.steps if s.forced})
 
     def held_out(self, named: Iterator[Family]) -> Iterator[Family]:
         """Computed as needed, in order; a family that did not win and that the campaign

@@ -38,6 +38,16 @@ cancel (``rho a b > 0``: nearly parallel columns, opposite values), is named as 
 (:class:`Cancelling`). A probe's mounting turn is the mounting check's
 (:mod:`stiffness.calibration.probe_mounting`).
 
+Lengths are judged as physical errors too, against the angle limit
+(:meth:`~stiffness.elastic.effects.pose_face.PoseFamily.plausible_lengths`): a joint
+placement's translation beyond ``tan(5 deg)`` times its link (the distance from the previous
+joint, at least a tenth of the reach) is **implausible** (:attr:`Plausibility.shifted`;
+:attr:`Plausibility.plausible` false, the verdict headed ``IMPLAUSIBLE PLACEMENTS``, or
+``IMPLAUSIBLE ANGLES AND PLACEMENTS``, when the lengths are in the right unit): the turn of
+the link by the angle limit moves the joint that far, so a larger shift is such a turn, or a
+pair of zero offsets that cancel, traded into a length, which a search refused as an angle
+would otherwise name as a machining error (:func:`unphysical_values`).
+
 A marker whose fitted offset is a unit's factor (10 or more) times its declared one, in the
 same direction (cosine above :data:`SAME_DIRECTION`), had its offset declared in another unit
 than the campaign's: the fit corrected it, so the calibration stands, and a note names the
@@ -63,7 +73,7 @@ from stiffness.calibration.unit_checks import (
     spread_advice,
 )
 from stiffness.elastic.effects import FAMILIES
-from stiffness.elastic.effects.kinematic_errors import PLACEMENT_FRACTION
+from stiffness.elastic.effects.kinematic_errors import DEFLECTION_OFFSET_RAD, PLACEMENT_FRACTION
 from stiffness.files import number_text
 from stiffness.robot.kinematics import reach
 from stiffness.units import LENGTH_UNITS, Units
@@ -166,6 +176,8 @@ class Plausibility:
     #: angles beyond their family's limit (rad), and the pairs of angles that cancel
     turned: tuple[Beyond, ...] = ()
     cancelling: tuple[Cancelling, ...] = ()
+    #: placement translations beyond what the angle limit moves a joint over its link (m)
+    shifted: tuple[Beyond, ...] = ()
 
     @property
     def spread_off(self) -> bool:
@@ -176,11 +188,13 @@ class Plausibility:
     def plausible(self) -> bool:
         """Whether the fit can be a calibration (no length or angle beyond it, the spread
         about 1)."""
-        return not self.beyond and not self.spread_off and not self.turned
+        return (not self.beyond and not self.spread_off and not self.turned
+                and not self.shifted)
 
     @property
     def lengths_plausible(self) -> bool:
-        """Whether the lengths and the spread can be a calibration's (no unit read wrong)."""
+        """Whether the lengths and the spread can be a calibration's (no unit read wrong;
+        :attr:`shifted` lengths are a physical question, not a unit's)."""
         return not self.beyond and not self.spread_off
 
     @property
@@ -192,14 +206,21 @@ class Plausibility:
 
     def verdict(self) -> str | None:
         """The report's line when the fit is no calibration (``None`` when it can be one):
-        ``NOT A CALIBRATION`` for lengths (:meth:`length_verdict`), ``IMPLAUSIBLE ANGLES``
-        for angles alone (:meth:`angle_verdict`), both parts when both."""
+        ``NOT A CALIBRATION`` for a unit (:meth:`length_verdict`; the placements it moves
+        need no other word), else ``IMPLAUSIBLE ANGLES`` (:meth:`angle_verdict`),
+        ``IMPLAUSIBLE PLACEMENTS`` (:meth:`placement_verdict`) or both; the angles' part
+        follows a unit's."""
         if self.plausible:
             return None
-        if self.lengths_plausible:
-            return f"IMPLAUSIBLE ANGLES: {self.angle_verdict()}"
         angles = f"; and {self.angle_verdict()}" if self.turned else ""
-        return f"{self.length_verdict()}{angles}"
+        if not self.lengths_plausible:
+            return f"{self.length_verdict()}{angles}"
+        if not self.shifted:
+            return f"IMPLAUSIBLE ANGLES: {self.angle_verdict()}"
+        if not self.turned:
+            return f"IMPLAUSIBLE PLACEMENTS: {self.placement_verdict()}"
+        return f"IMPLAUSIBLE ANGLES AND PLACEMENTS: {self.angle_verdict()}; and " \
+               f"{self.placement_verdict()}"
 
     def angle_verdict(self) -> str:
         """The angles beyond their limits, the pairs that cancel, and what to do."""
@@ -207,6 +228,13 @@ class Plausibility:
                 "these joints over more of their range tell such parameters apart, or the "
                 "model's zero or axis differs from the robot's (check the joint's zero and "
                 "sign)")
+
+    def placement_verdict(self) -> str:
+        """The placements moved beyond their limits, and what to do."""
+        return (f"the fit moves {_shifted_text(self.shifted)}; poses that move the joints "
+                "before them over more of their range tell such a shift from those joints' "
+                "zero offsets, or the model's links differ from the robot's (check its "
+                "drawing)")
 
     def length_verdict(self) -> str:
         """``NOT A CALIBRATION``: the lengths and spread (module docstring)."""
@@ -238,6 +266,7 @@ class Plausibility:
                 "beyond": [b.to_dict() for b in self.beyond],
                 "marker_offsets": [o.to_dict(self.units) for o in self.offsets],
                 "beyond_angles": [b.to_dict() for b in self.turned],
+                "beyond_placements": [b.to_dict() for b in self.shifted],
                 "cancelling": [c.to_dict() for c in self.cancelling]}
 
 
@@ -265,7 +294,7 @@ def plausibility(fit: PoseFit, campaign: PoseCampaign) -> Plausibility:
     turned = _turned(fit)
     return Plausibility(robot.title, size, campaign.units, tuple(beyond),
                         None if spread is None else spread[0], tuple(offsets), turned,
-                        _cancelling(fit, turned))
+                        _cancelling(fit, turned), _shifted(fit))
 
 
 def _angle_limits(fit: PoseFit) -> np.ndarray:
@@ -281,6 +310,33 @@ def _turned(fit: PoseFit) -> tuple[Beyond, ...]:
     out = [Beyond(p.label, float(fit.x[i]), float(limits[i]), "rad")
            for i, p in enumerate(fit.model.parameters) if abs(fit.x[i]) > limits[i]]
     return tuple(sorted(out, key=lambda b: -abs(b.value) / b.limit))
+
+
+def _shifted(fit: PoseFit) -> tuple[Beyond, ...]:
+    """The lengths beyond their family's physical limit
+    (:meth:`~stiffness.elastic.effects.pose_face.PoseFamily.plausible_lengths`), farthest
+    first."""
+    model = fit.model
+    limits = np.full(model.size, np.nan)
+    for family in model.family_objects:
+        own = family.plausible_lengths(model)
+        if own is not None:
+            limits[model.slices()[family.name]] = own
+    out = [Beyond(p.label, float(fit.x[i]), float(limits[i]))
+           for i, p in enumerate(model.parameters) if abs(fit.x[i]) > limits[i]]
+    return tuple(sorted(out, key=lambda b: -abs(b.value) / b.limit))
+
+
+def _shifted_text(shifted: tuple[Beyond, ...]) -> str:
+    """The lengths ``shifted`` beyond their limits (the first :data:`QUOTED`), with their
+    limits, as the verdict and a search's refusal quote them."""
+    quoted = ", ".join(f"{b.parameter} {b.value:+.3g} m (limit {b.limit:.3g} m)"
+                       for b in shifted[:QUOTED])
+    more = len(shifted) - QUOTED
+    return (quoted + (f" (and {more} more)" if more > 0 else "")
+            + f", beyond what a turn of {math.degrees(DEFLECTION_OFFSET_RAD):.3g} deg moves "
+            "a joint over its link (the distance from the previous joint, at least "
+            f"{PLACEMENT_FRACTION:g} of the reach)")
 
 
 def _cancelling(fit: PoseFit, turned: tuple[Beyond, ...]) -> tuple[Cancelling, ...]:
@@ -318,24 +374,26 @@ def _turned_text(turned: tuple[Beyond, ...], cancelling: tuple[Cancelling, ...])
             f"level base is off by{cancel}")
 
 
-def unphysical_angles(fit: PoseFit, forced: Collection[str] = ()) -> str | None:
+def unphysical_values(fit: PoseFit, forced: Collection[str] = ()) -> str | None:
     """Why diagnose's search may not name ``fit`` (one line,
-    :meth:`~stiffness.calibration.pose_diagnose.PoseSearch.unphysical`): an angle of a family
-    not ``forced`` (``diagnose --families``, whose values the verdict only warns about)
-    beyond its family's limit, or in a pair of angles that cancel (module docstring); the
-    angles named as the verdict names them. ``None`` when there is none."""
-    turned = _turned(fit)
-    if not turned:
-        return None
+    :meth:`~stiffness.calibration.pose_diagnose.PoseSearch.unphysical`): of a family not
+    ``forced`` (``diagnose --families``, whose values the verdict only warns about), an angle
+    beyond its family's limit or in a pair of angles that cancel, or a placement shifted
+    beyond its limit (module docstring); named as the verdict names them. ``None`` when there
+    is none."""
     family = {p.label: p.family for p in fit.model.parameters}
+    turned = _turned(fit)
     pairs = tuple(c for c in _cancelling(fit, turned)
                   if any(family[a] not in forced for a in c.parameters))
     paired = {a for c in pairs for a in c.parameters}
     named = tuple(b for b in turned if family[b.parameter] not in forced or b.parameter in paired)
-    if not named:
+    shifted = tuple(b for b in _shifted(fit) if family[b.parameter] not in forced)
+    parts = ([f"turns {_turned_text(named, pairs)}"] if named else []) + (
+        [f"moves {_shifted_text(shifted)}"] if shifted else [])
+    if not parts:
         return None
-    return (f"unphysical: its fit turns {_turned_text(named, pairs)}, and a named family's "
-            "values are physical ones (docs/absolute-poses.md, Implausible angles)")
+    return (f"unphysical: its fit {'; and '.join(parts)}, and a named family's values are "
+            "physical ones (docs/absolute-poses.md, Implausible angles and placements)")
 
 
 def _declared_unit(declared: np.ndarray, fitted: np.ndarray, units: Units

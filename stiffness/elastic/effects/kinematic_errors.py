@@ -40,6 +40,7 @@ from stiffness.robot.calibration import (
     placement_label,
     zero_label,
 )
+from stiffness.robot.kinematics import reach
 
 #: Physical scale (rad) of a probe's mounting turn about its declared mounting: a few degrees
 #: (beyond, the mounting is declared wrong, :mod:`stiffness.calibration.probe_mounting`).
@@ -51,6 +52,20 @@ MOUNTING_TURN_RAD = math.radians(5.0)
 #: an arm of up to ten joints, while a machined robot is off its drawing by millimetres
 #: (:mod:`stiffness.calibration.pose_plausibility`).
 PLACEMENT_FRACTION = 0.1
+
+
+def placement_lever(model: pin.Model, joint: int, floor: float) -> float:
+    """The lever (m) of ``joint``'s placement: the length of the link that carries it, the
+    distance from the previous joint (its placement's translation in ``model``); for a joint
+    at its parent's origin (axes that meet, as in a wrist) its parent's lever, the turn of the
+    link before them moving both; at least ``floor`` (:data:`PLACEMENT_FRACTION` of the
+    reach in :meth:`JointGeometry.plausible_lengths`, a typical link of an arm of up to ten
+    joints: a short link or one at the base's origin is machined no worse than the links
+    around it, and a lever of zero would refuse any shift)."""
+    while joint > 0 and not np.any(model.jointPlacements[joint].translation):
+        joint = int(model.parents[joint])
+    length = float(np.linalg.norm(model.jointPlacements[joint].translation)) if joint else 0.0
+    return max(length, floor)
 
 
 class MeasuringFrame(PoseFamily):
@@ -329,6 +344,18 @@ class JointGeometry(PoseFamily):
         names = pm.robot.model.names
         return [self.param(placement_label(names[pm.joints[n]], PLACEMENT_AXES[c]),
                            PLACEMENT_UNITS[c]) for n, c in pm.geometry]
+
+    def plausible_lengths(self, pm: PoseLayout) -> np.ndarray:
+        """A placement's translation (each of x, y, z, m) beyond ``tan(5 deg)`` times its
+        joint's lever (:func:`placement_lever`) is not physical: a turn of the link by the
+        angle limit moves the joint that far, so a larger shift is an angle the limit refuses
+        traded into a length (docs/absolute-poses.md, Implausible placements). NaN for the
+        turns (judged as angles)."""
+        model = pm.robot.model
+        floor = PLACEMENT_FRACTION * reach(model)
+        tangent = math.tan(DEFLECTION_OFFSET_RAD)
+        return np.array([tangent * placement_lever(model, pm.joints[n], floor)
+                         if PLACEMENT_UNITS[c] == "m" else np.nan for n, c in pm.geometry])
 
     def placement_errors(self, pm: PoseLayout, x_f: np.ndarray) -> np.ndarray:
         """(n_joints, 6) placement errors from the family's parameters."""

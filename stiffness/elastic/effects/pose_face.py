@@ -269,6 +269,14 @@ class PoseFamily(Effect):
     #: frame's rotation is free, a probe's mounting turn is the mounting check's)
     plausible_angle_rad: ClassVar[float | None] = None
 
+    def plausible_lengths(self, pm: PoseLayout) -> np.ndarray | None:
+        """The largest value (m) each of its parameters may take as a physical error (what a
+        machined robot is off its drawing by, far below a wrong unit's
+        :attr:`plausible_reach_fraction`), in :meth:`family_parameters`' order, NaN for a
+        parameter not so judged; ``None`` (this default): none is
+        (:mod:`stiffness.calibration.pose_plausibility`)."""
+        return None
+
     def family_parameters(self, pm: PoseLayout) -> list[FamilyParameter]:
         """The family's parameters, in column order."""
         raise NotImplementedError
