@@ -516,6 +516,11 @@ def test_robot_file_notes_print_once_as_notes_and_not_under_quiet(tmp_path):
     (_planar_arm().replace('effort="1" velocity="1"', 'effort="-1.0" velocity="-1"'), 8,
      "joint 'j1' has a negative effort=-1.0 and velocity=-1 in its <limit>, which Pinocchio "
      "takes as a minimum above the maximum; write the limits as positive numbers"),
+    # 'Could not find the 'robot' element in the xml file' for a Gazebo or MuJoCo file
+    ('<?xml version="1.0"?>\n<sdf version="1.6"><model name="m"><link name="a"/></model></sdf>',
+     2, "an SDFormat (Gazebo) file, not a URDF: its root element is <sdf>, a URDF's is <robot>"),
+    ('<mujoco model="m">\n<worldbody/></mujoco>', 1,
+     "a MuJoCo (MJCF) file, not a URDF: its root element is <mujoco>"),
     # 'No name given for the robot.' (ROBOTIS' open_manipulator, xacro-generated)
     (_planar_arm().replace('<robot name="planar">', '<robot>'), 2,
      'the <robot> element has no name attribute; name the robot, e.g. <robot name="arm">'),

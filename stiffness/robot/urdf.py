@@ -139,9 +139,15 @@ def _element_line(root, message: str) -> int | None:
 
 def _structure_problem(root) -> tuple[str, int] | None:
     """What Pinocchio refuses without naming the element (urdfdom's message omits the line,
-    Pinocchio's names no joint): a ``<robot>`` without a name, the first joint naming a link
+    Pinocchio's names no joint): another format's file (SDF, MJCF), a ``<robot>`` without a
+    name, the first joint naming a link
     the file does not define, or a ``<limit>`` with a negative effort or velocity."""
-    if root.tag == "robot" and not root.get("name"):
+    if root.tag != "robot":  # lxml's recovered root of a file with no element is <robot/>
+        kind = _OTHER_FORMATS.get(str(root.tag).lower())
+        what = f"{kind} file, not a URDF" if kind else "not a URDF"
+        return (f"{what}: its root element is <{root.tag}>, a URDF's is <robot>; export or "
+                "convert the robot to a URDF and give that file"), root.sourceline
+    if not root.get("name"):
         return ("the <robot> element has no name attribute; name the robot, e.g. "
                 '<robot name="arm">'), root.sourceline
     links = {link.get("name") for link in root.iter("link")}
@@ -153,6 +159,11 @@ def _structure_problem(root) -> tuple[str, int] | None:
                 return (f"joint {joint.get('name')!r} names the {role} link {name!r}, which the "
                         "file does not define"), element.sourceline
     return _negative_limit(root)
+
+
+#: Robot description formats given for a URDF, by their root element.
+_OTHER_FORMATS = {"sdf": "an SDFormat (Gazebo)", "mujoco": "a MuJoCo (MJCF)",
+                  "collada": "a COLLADA", "model": "a Gazebo model.config"}
 
 
 def _negative_limit(root) -> tuple[str, int] | None:
