@@ -226,8 +226,8 @@ def read_pose_calibration(path: str | os.PathLike) -> PoseCalibration:
     -----
     DataFileWarning
         The file's ``plausibility`` says the fit is no calibration (a length unit read wrong,
-        or angles beyond a few degrees: :mod:`stiffness.calibration.pose_plausibility`), with
-        its verdict.
+        angles beyond a few degrees, or placements shifted beyond what those degrees turn
+        their link by: :mod:`stiffness.calibration.pose_plausibility`), with its verdict.
     """
     path = Path(path)
     doc = read_json(path, "model file")
