@@ -175,3 +175,21 @@ def test_posture_without_a_wrench_names_the_flag(tmp_path: Path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "--wrench fx,fy,fz" in err and "fx,fy,fz columns in the poses file" in err
+
+
+def test_a_fixed_joint_or_a_link_named_as_compliant_says_what_it_is(tmp_path: Path):
+    """--compliant-joints naming ROS-Industrial's fixed ``joint6-tool0`` or a link said only
+    'is not a coordinate joint'; it says which: a fixed joint, or a link and the joint that
+    moves it."""
+    import pytest
+
+    from stiffness.errors import UnknownJointError
+
+    path = tmp_path / "arm.urdf"
+    path.write_text(arm_urdf())
+    with pytest.raises(UnknownJointError, match=r"'flange' is not a coordinate joint of arm "
+                       r"\(it is a fixed joint: nothing turns it\)"):
+        load_robot(path, compliant_joints=["joint_2", "flange"])
+    with pytest.raises(UnknownJointError, match=r"'link_3' is not a coordinate joint of arm "
+                       r"\(it is a link, moved by joint 'joint_3'\)"):
+        load_robot(path, compliant_joints="link_3")

@@ -161,15 +161,15 @@ def ordered_coordinates(name: str, settings: dict, coordinate_joints: list[str],
 
 
 def check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: list[str],
-                     passive: set[str], dependent: set[str], coupling: CoordinateMap | None
-                     ) -> None:
-    """Raise if a compliant joint carries no spring (not in ``spring_names``: the reason named)
-    or is listed twice."""
+                     passive: set[str], dependent: set[str], coupling: CoordinateMap | None,
+                     model: pin.Model | None = None) -> None:
+    """Raise if a compliant joint carries no spring (not in ``spring_names``: the reason named,
+    a fixed joint or a link of ``model`` among them) or is listed twice."""
     for joint_name in compliant_joints:
         if joint_name not in spring_names:
             why = (" (it is a passive loop joint)" if joint_name in passive else
                    " (it is a mimic follower: its leader carries the spring)"
-                   if joint_name in dependent else "")
+                   if joint_name in dependent else _frame_kind(model, joint_name))
             if coupling is not None:
                 why = (f" (its springs act on the {coupling.springs_on}'s coordinates: "
                        "[controller] springs_on)")
@@ -181,6 +181,19 @@ def check_compliant(name: str, compliant_joints: tuple[str, ...], spring_names: 
         twice = next(j for j in compliant_joints if compliant_joints.count(j) > 1)
         raise StiffnessError(f"compliant joints repeat a name: {list(compliant_joints)} "
                              f"({twice!r} twice); name each joint once")
+
+
+def _frame_kind(model: pin.Model | None, name: str) -> str:
+    """What ``name`` is in ``model`` when it is no joint with a degree of freedom: a fixed joint
+    (ROS-Industrial's ``joint_6-tool0``) or a link, with the joint that moves it."""
+    if model is None or not model.existFrame(name):
+        return ""
+    frame = model.frames[model.getFrameId(name)]
+    if frame.type == pin.FrameType.FIXED_JOINT:
+        return " (it is a fixed joint: nothing turns it)"
+    if frame.type == pin.FrameType.BODY and frame.parentJoint > 0:
+        return f" (it is a link, moved by joint {model.names[frame.parentJoint]!r})"
+    return ""
 
 
 def controller_map(name: str, settings: dict, model: pin.Model, chain: list[str], looped: bool,

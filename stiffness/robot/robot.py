@@ -677,7 +677,7 @@ def load_robot(
     settings = check_counts(settings, coordinate_joints, springs)
     compliant_joints = tuple(springs if compliant_joints is None else joint_names(compliant_joints))
     check_compliant(title, compliant_joints, spring_names, set(loop.passive_joints),
-                    {m.follower for m in mimics}, coupling)
+                    {m.follower for m in mimics}, coupling, model)
     target_id = _add_target_frame(model, fid, offset)  # before the data, which holds its frame
     return Robot(
         name=src.name,
