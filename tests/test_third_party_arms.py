@@ -193,3 +193,26 @@ def test_a_fixed_joint_or_a_link_named_as_compliant_says_what_it_is(tmp_path: Pa
     with pytest.raises(UnknownJointError, match=r"'link_3' is not a coordinate joint of arm "
                        r"\(it is a link, moved by joint 'joint_3'\)"):
         load_robot(path, compliant_joints="link_3")
+
+
+def test_a_rail_with_placeholder_limits_is_sampled_near_its_reference(tmp_path: Path):
+    """The Robotics Toolbox's Fetch puts its base on a prismatic joint limited to
+    -999999..999999 m: poses were drawn up to a million metres out and `simulate`, `design`
+    found 'only 0 of 8 reachable poses'. Such a range counts as none: the rail is drawn within
+    0.1 m, as an unbounded prismatic joint is, and the campaign is written."""
+    from stiffness.cli.main import main
+
+    rail = ('<link name="rail"/><joint name="rail_joint" type="prismatic"><parent link="rail"/>'
+            '<child link="base_link"/><axis xyz="1 0 0"/><limit lower="-999999" '
+            'upper="999999" effort="100" velocity="1"/></joint>')
+    path = tmp_path / "rail.urdf"
+    path.write_text(arm_urdf().replace('<link name="base_link"/>',
+                                       '<link name="base_link"/>' + rail))
+    out = tmp_path / "campaign"
+    assert main(["simulate", "--robot", str(path), "--kq", "1e5,1e4,1e4,1e4,1e4",
+                 "--configs", "4", "--out", str(out), "--quiet"]) == 0
+    lines = (out / "measurements.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rail_mm = [float(line.split(",")[header.index("q1")]) for line in lines[1:]]
+    assert load_robot(path).coordinate_joints[0] == "rail_joint"
+    assert min(rail_mm) >= 0.0 and max(rail_mm) <= 100.0  # mm, the campaign's unit

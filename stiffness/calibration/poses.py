@@ -277,10 +277,16 @@ class Workspace:
         return coords
 
 
+#: A prismatic joint's range (m) beyond any real rail: a file's stand-in for 'no limit'
+#: (Fetch's base_joint2 of the Robotics Toolbox: -999999..999999).
+_NO_RAIL_M = 1e3
+
+
 def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """Lower and upper limits (rad, m) of the coordinates as poses are drawn.
 
-    Revolute joints within +-pi; a joint without finite limits: +-pi, or 0..0.1 m if prismatic,
+    Revolute joints within +-pi; a joint without finite limits (a prismatic one's range over
+    ``_NO_RAIL_M`` counts as none): +-pi, or 0..0.1 m if prismatic,
     that span centred on the reference pose's value (:func:`assembly_coordinates`) when the
     pose lies outside it (Gepetto's wl16 leg closes with its unbounded motors near -0.3 m).
     """
@@ -292,7 +298,7 @@ def coordinate_limits(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
         joints = [model.joints[model.getJointId(j)] for j in robot.coordinate_joints]
         lo = np.array([model.lowerPositionLimit[j.idx_q] for j in joints])
         hi = np.array([model.upperPositionLimit[j.idx_q] for j in joints])
-    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo)
+    bad = ~np.isfinite(lo) | ~np.isfinite(hi) | (hi <= lo) | (prismatic & (hi - lo > _NO_RAIL_M))
     lo = np.where(bad, np.where(prismatic, 0.0, -math.pi), lo)
     hi = np.where(bad, np.where(prismatic, 0.1, math.pi), hi)
     if np.any(bad & prismatic):
