@@ -216,3 +216,35 @@ def test_a_rail_with_placeholder_limits_is_sampled_near_its_reference(tmp_path: 
     rail_mm = [float(line.split(",")[header.index("q1")]) for line in lines[1:]]
     assert load_robot(path).coordinate_joints[0] == "rail_joint"
     assert min(rail_mm) >= 0.0 and max(rail_mm) <= 100.0  # mm, the campaign's unit
+
+
+def test_backlash_on_a_prismatic_joint_is_said_in_the_length_unit(tmp_path: Path):
+    """Kinova MOVO's linear_joint (a prismatic lift) with --effect backlash: its half-width is
+    read in the campaign's length unit (mm), but truth.json's value_units said 'deg' for
+    backlash (and 1/(N.m) for nonlinear_joint_stiffness), as `simulate --kind poses` did not.
+    The lost motion is the mm given: the rail's deflection along its axis under a pull
+    (loads along it) jumps by twice the half-width between opposite loads."""
+    import json
+
+    from stiffness.cli.main import main
+
+    rail = ('<link name="rail"/><joint name="rail_joint" type="prismatic"><parent link="rail"/>'
+            '<child link="base_link"/><axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" '
+            'effort="100" velocity="1"/></joint>')
+    path = tmp_path / "rail.urdf"
+    path.write_text(arm_urdf().replace('<link name="base_link"/>',
+                                       '<link name="base_link"/>' + rail))
+    out = tmp_path / "campaign"
+    assert main(["simulate", "--robot", str(path), "--kq", "1e8,1e8,1e8,1e8,1e8",
+                 "--effect", "backlash:rail_joint=0.5", "--load-pattern", "axes",
+                 "--configs", "2", "--noise", "0", "--out", str(out), "--quiet"]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["value_units"]["backlash"] == "deg (mm prismatic)"
+    assert truth["value_units"]["nonlinear_joint_stiffness"] == "1/(N.m) (1/N prismatic)"
+    lines = (out / "measurements.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [dict(zip(header, line.split(","), strict=True)) for line in lines[1:]]
+    dx = {float(r["fx"]): float(r["dx"]) for r in rows[:6] if abs(float(r["fx"])) > 0}
+    assert sorted(dx) == [-100.0, 100.0]
+    # springs of 1e8 N/m and N.m/rad: the rest of the deflection is under 0.02 mm
+    assert abs(dx[100.0] - dx[-100.0] - 2 * 0.5) < 0.02

@@ -75,9 +75,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="hidden effect, repeatable; deflections: " + ", ".join(LIBRARY)
                              + "; a "
                              "place NAME:WHERE or NAME(WHERE), e.g. "
-                             "backlash:joint2=0.003 (deg), joint_compliance:joint5=3e5 "
+                             "backlash:joint2=0.003 (deg; --units on a prismatic joint), "
+                             "joint_compliance:joint5=3e5 "
                              "(N.m/rad), 'link_compliance:joint2->elbow=2e6' (N.m/rad), "
-                             "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m)), "
+                             "nonlinear_joint_stiffness:joint3=0.001 (1/(N.m); 1/N "
+                             "prismatic), "
                              "frame_misalignment=2 (deg), target_offset=20 (--units), "
                              "force_sensor_bias=5 (N), complementary_stiffness, "
                              "gravity_preload=20[,cx,cy,cz] (kg, --units), "

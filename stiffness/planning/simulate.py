@@ -471,7 +471,8 @@ class Simulation:
             "value_units": {
                 "joint_compliance": "N.m/rad (N/m prismatic)", "link_compliance": "N.m/rad",
                 "transversal_compliance": "N.m/rad",
-                "backlash": self.campaign.units.angle, "nonlinear_joint_stiffness": "1/(N.m)",
+                "backlash": f"{self.campaign.units.angle} ({self.campaign.units.length} "
+                "prismatic)", "nonlinear_joint_stiffness": "1/(N.m) (1/N prismatic)",
                 "frame_misalignment": self.campaign.units.angle,
                 "target_offset": self.campaign.units.length,
                 "force_sensor_bias": self.campaign.units.force,
