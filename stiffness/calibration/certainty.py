@@ -7,13 +7,17 @@ For each effect of the final model:
   folds, a pose campaign's leave-one-configuration-out); the cost is that model's held-out RMS
   minus the final model's (m): what predicting unseen configurations loses without the
   effect. Its in-sample counterpart is the BIC change of the removal
-  (positive: the effect earns its parameters), under the overdispersion of the final model
-  and its removals (a misfit above the noise acts as extra noise;
-  :func:`~stiffness.calibration.selection.step_criteria`), the scale backward elimination
-  judges the same removals on: when the final model stays above the noise, that of the step
-  that named the last effect, so removing the last effect added costs what adding it gained;
-  an effect named earlier, under a misfit the later effects explained, is judged on what the
-  final model leaves, not on that larger misfit.
+  (positive: the effect earns its parameters), under one overdispersion for every removal:
+  the least misfit per degree of freedom that the final model, its removals or any
+  candidate of the steps that named its effects leaves (:func:`dispersion`; a misfit above
+  the noise acts as extra noise, :func:`~stiffness.calibration.selection.step_criteria`'s
+  rule over every model the comparison can draw on). So an effect named earlier, under a
+  misfit the later effects explained, is judged on what the final model leaves, not on that
+  larger misfit; and the last effect named is judged on at least its own step's evidence:
+  removing it costs what adding it gained (more only when the final model or a removal
+  leaves less misfit than every model of that step), although its step's overdispersion came
+  from a candidate not added (FIGAROH's TIAGo: ``geometry`` left 11.4 times the noise
+  variance, the final model 19.1).
 * **best alternative**: the best-ranked other candidate of the step that named it, and its BIC
   minus the chosen one's (a few units: a coin toss; tens: solid), and why it was not chosen
   (:class:`NotChosen`, from what that step recorded): ranked after the chosen one by BIC, or,
@@ -43,7 +47,7 @@ from dataclasses import dataclass
 
 from stiffness.calibration.naming import STAND_IN_NOTE, alternative
 from stiffness.calibration.search import E, F, Removals, SearchKind, Step, label
-from stiffness.calibration.selection import step_criteria
+from stiffness.calibration.selection import information_criterion, step_criteria
 from stiffness.htmlpage import esc, table
 
 
@@ -59,8 +63,7 @@ class Certainty:
         Cross-validated RMS without it minus the final model's (m); NaN without folds.
     removal_delta_bic
         BIC of the final model without it minus the final model's, under the overdispersion
-        of the final model and its removals (the module docstring), as backward elimination
-        judges them.
+        :func:`dispersion` (the module docstring).
     alternative, alternative_delta_bic
         Label of the best other candidate of its step and its BIC minus the chosen one's
         (``None`` when the step had no other candidate).
@@ -158,6 +161,24 @@ def not_chosen(step: Step[E, F], alt: str | None) -> NotChosen | None:
     return NotChosen(HELD_OUT, cv, step.cv_rms)
 
 
+def dispersion(kind: SearchKind[E, F], final: F, removals: Sequence[F],
+               named: Sequence[Step[E, F]]) -> float:
+    """The overdispersion every removal of :func:`how_sure` is judged under:
+    :func:`~stiffness.calibration.selection.step_criteria`'s ``c`` over ``final`` and its
+    ``removals``, or the least :attr:`~stiffness.calibration.search.Step.dispersion` of the
+    steps ``named`` (each its step's models' least misfit per degree of freedom, over the
+    noise variance) when smaller; 1 with an unknown noise.
+
+    Each is the misfit some fitted model leaves above the noise: the least of them is the best
+    estimate the search has of what no model explains, so the same misfit is not counted as
+    noise on one comparison and as explained on another. The last effect named is thus never
+    judged on a larger overdispersion than its step's, which may have come from a candidate
+    not added.
+    """
+    *_, c = step_criteria(final.terms(), [fit.terms() for fit in removals], kind.n, kind.sigma)
+    return min([c, *(s.dispersion for s in named)])
+
+
 def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[Step[E, F]],
              stand_in: Callable[[str], bool]) -> list[Certainty]:
     """The :class:`Certainty` of what each step ``named`` adds to a diagnosis whose final fit
@@ -173,8 +194,10 @@ def how_sure(kind: SearchKind[E, F], final: F, cv_final: float, named: Sequence[
     out = kind.removals
     if out is None or out.final is not final:
         out = kind.removals = Removals(final, kind.without(final), {})
-    base, bics, _ = step_criteria(final.terms(), [fit.terms() for fit in out.fits], kind.n,
-                                  kind.sigma)
+    c = dispersion(kind, final, out.fits, named)
+    sigma = None if kind.sigma is None else kind.sigma * math.sqrt(c)
+    base, *bics = (information_criterion(rss, kind.n, p, sigma)
+                   for rss, p in (f.terms() for f in [final, *out.fits]))
     certain = []
     for s, bic, cv in zip(named, bics, out.held_out(kind, range(len(out.fits))),
                           strict=True):
