@@ -103,7 +103,10 @@ def test_effect_sizes_are_the_rigid_displacements(tmp_path, capsys):
     assert truth["k_theta_SI"] is None and truth["hidden"]["backlash"] is None
     assert {"format", "kind", "robot", "compliant_joints", "k_theta_SI", "markers",
             "hidden_effects", "expected_missing_effects", "effect_rms", "effect_rms_noise_units",
-            "noise_std", "unit", "value_units", "hidden", "settings", "model"} == set(truth)
+            "effect_rms_beyond_frame", "noise_std", "unit", "value_units", "hidden", "settings",
+            "model"} == set(truth)
+    # a frame move is rigid: nothing of it is left once the measuring frame is fitted
+    assert truth["effect_rms_beyond_frame"]["frame"] < 1e-9
     assert truth["kind"] == "poses" and truth["unit"] == "mm"
     assert truth["settings"]["poses"] == 5 and truth["markers"][0]["frame"] == "tool0"
 

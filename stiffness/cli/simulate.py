@@ -253,8 +253,12 @@ def _run_poses(args: argparse.Namespace, robot: flags.RobotFlags, kq: list[float
     print(f"noise std {truth['noise_std']:.4g} {truth['unit']} per position component")
     for label, size in truth["effect_rms"].items():
         noise = truth["effect_rms_noise_units"][label]
+        beyond = truth["effect_rms_beyond_frame"].get(label)
         print(f"hidden {label}: moves the markers by {size:.3g} {truth['unit']} RMS"
-              + ("" if noise is None else f", {noise:.3g} noise std"))
+              + ("" if noise is None else f", {noise:.3g} noise std")
+              + ("" if beyond is None or beyond >= 0.5 * size else
+                 f"; {beyond:.3g} {truth['unit']} RMS beyond a rigid move of the measuring "
+                 "frame, which every fit takes out: only that part can show"))
     if not truth["effect_rms"]:
         print("no hidden effect")
     return 0

@@ -44,7 +44,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,7 +53,7 @@ import pinocchio as pin
 from stiffness.calibration.campaign_toml import CAMPAIGN_FILE
 from stiffness.calibration.pose_campaign import PoseCampaign, write_pose_campaign
 from stiffness.calibration.pose_loops import PoseLoops
-from stiffness.calibration.pose_model import Marker, pose_joints
+from stiffness.calibration.pose_model import Marker, align_frames, pose_joints
 from stiffness.elastic.effects import FAMILIES
 from stiffness.elastic.effects.base import effect_place
 from stiffness.errors import (
@@ -320,6 +320,10 @@ class PoseSimulation:
         act through a spring removed with it).
     settings
         The simulation's inputs (JSON-ready).
+    effect_rms_beyond_frame_m
+        The same change once the positions without the effect are moved rigidly onto the
+        truth (the measuring frame a pose fit always finds): what the campaign can show of it
+        (m; NaN when the markers span too few points).
     """
 
     campaign: PoseCampaign
@@ -328,6 +332,7 @@ class PoseSimulation:
     noise_std_m: float
     effect_rms_m: dict[str, float]
     settings: dict
+    effect_rms_beyond_frame_m: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The object ``stiffness simulate --kind poses --json`` prints: :meth:`truth`."""
@@ -359,6 +364,8 @@ class PoseSimulation:
             "effect_rms": {k: v / lu for k, v in self.effect_rms_m.items()},
             "effect_rms_noise_units": {k: v / self.noise_std_m if self.noise_std_m > 0 else None
                                        for k, v in self.effect_rms_m.items()},
+            "effect_rms_beyond_frame": {k: None if math.isnan(v) else v / lu
+                                        for k, v in self.effect_rms_beyond_frame_m.items()},
             "noise_std": self.noise_std_m / lu, "unit": c.units.length,
             "value_units": _value_units(c.units),
             "hidden": _hidden_dict(h),
@@ -483,7 +490,8 @@ def simulate_poses(
     campaign.settings = replace(campaign.settings, fixed_base=given.fixed_base)
     if not declare_noise:
         campaign.noise_std = campaign.noise_std_rotation = None
-    sizes = _effect_sizes(given, markers, hidden_effects, kq, units, drift_m, campaign.q, wrench)
+    sizes, beyond = _effect_sizes(given, markers, hidden_effects, kq, units, drift_m,
+                                  campaign.q, wrench)
     _warn_unloaded(given, sizes, wrench)
     settings = {"robot": {"source": given.name, "frame": given.target_frame},
                 "poses": poses, "seed": seed,
@@ -491,7 +499,7 @@ def simulate_poses(
                 "payload_SI": None if wrench is None else wrench.tolist(),
                 "rotations": rotations, "rotation_noise_std_rad": rotation_std,
                 "drift_m": truth.drift.tolist(), "declare_noise": declare_noise}
-    return PoseSimulation(campaign, truth, hidden_effects, noise_std_m, sizes, settings)
+    return PoseSimulation(campaign, truth, hidden_effects, noise_std_m, sizes, settings, beyond)
 
 
 #: A hidden effect's RMS on the markers below which it moves none of them (m): float rounding.
@@ -529,29 +537,41 @@ def _check_robot_and_markers(robot: Robot, markers: list[Marker]) -> None:
 def _effect_sizes(robot: Robot, markers: list[Marker], hidden: list[HiddenEffect],
                   kq: list[float] | np.ndarray | None, units: Units,
                   drift_m: np.ndarray | list[float] | None, poses: np.ndarray,
-                  wrench: np.ndarray | None) -> dict[str, float]:
+                  wrench: np.ndarray | None) -> tuple[dict[str, float], dict[str, float]]:
     """Each hidden effect's RMS change (m) of the noise-free marker positions at the
     campaign's commanded ``poses`` (rad, m): the truth against the truth without it (and
-    without what acts through a spring it removes)."""
+    without what acts through a spring it removes); and that change beyond a rigid move of
+    the measuring frame (:func:`_beyond_frame`)."""
     def positions(effects: list[HiddenEffect], k: list[float] | np.ndarray | None,
                   drift: np.ndarray | list[float] | None) -> np.ndarray:
         truth = hidden_pose_errors(robot, markers, effects, k, units, drift)
         return simulate_pose_campaign(robot, markers, truth, len(poses), 0.0, 0, wrench,
                                       coordinates=poses).positions
 
-    def rms(a: np.ndarray) -> float:
-        return float(np.sqrt(np.mean((a - full) ** 2)))
-
     full = positions(hidden, kq, drift_m)
-    sizes = {}
+    without = {}
     if kq is not None:
-        sizes["joint_compliance"] = rms(positions(
-            [h for h in hidden if h.name not in _THROUGH_SPRING], None, drift_m))
+        without["joint_compliance"] = positions(
+            [h for h in hidden if h.name not in _THROUGH_SPRING], None, drift_m)
     for h in hidden:
         spring = h.where if h.name == "joint_compliance" else None
-        sizes[h.label] = rms(positions(
+        without[h.label] = positions(
             [e for e in hidden if e is not h and not (e.name in _THROUGH_SPRING and e.where
-                                                      == spring)], kq, drift_m))
+                                                      == spring)], kq, drift_m)
     if drift_m is not None and np.any(np.asarray(drift_m, dtype=float) != 0):
-        sizes["drift"] = rms(positions(hidden, kq, None))
-    return sizes
+        without["drift"] = positions(hidden, kq, None)
+    sizes = {k: float(np.sqrt(np.nanmean((v - full) ** 2))) for k, v in without.items()}
+    return sizes, {k: _beyond_frame(v, full) for k, v in without.items()}
+
+
+def _beyond_frame(other: np.ndarray, full: np.ndarray) -> float:
+    """RMS (m) of the marker positions ``full`` against ``other`` (both (poses, markers, 3))
+    once ``other`` is moved rigidly onto ``full`` (the measuring frame every pose fit finds):
+    the part of a hidden effect a pose campaign can show (a base joint's zero offset about a
+    vertical axis has none); NaN when the markers span too few points to fit a frame."""
+    a, b = other.reshape(-1, 3), full.reshape(-1, 3)
+    try:
+        rot, shift = align_frames(a, b)
+    except StiffnessError:
+        return math.nan
+    return float(np.sqrt(np.nanmean((a @ rot.T + shift - b) ** 2)))
