@@ -277,3 +277,25 @@ def test_a_base_joints_offset_is_said_to_be_the_measuring_frames(tmp_path: Path,
     elbow = next(line for line in printed.splitlines() if "(joint_3)" in line)
     assert "beyond a rigid move of the measuring frame" in base and "only that part" in base
     assert "beyond" not in elbow
+
+
+def test_fixed_fingers_either_side_give_the_frame_they_branch_from(tmp_path: Path):
+    """The Robotics Toolbox's Fetch has its fingers as fixed joints, 15 mm either side of
+    ``gripper_link``: the farthest frame from the wrist was ``r_gripper_finger_link``, on one
+    finger. Tied frames at different places give the frame they branch from; a single
+    farthest frame is still taken (the tool0 of the other tests)."""
+    fingers = """
+<link name="gripper_link"/><link name="l_finger"/><link name="r_finger"/>
+<joint name="gripper_mount" type="fixed"><parent link="link_4"/><child link="gripper_link"/>
+  <origin xyz="0.15 0 0.05"/></joint>
+<joint name="l_finger_joint" type="fixed"><parent link="gripper_link"/><child link="l_finger"/>
+  <origin xyz="0 0.015 0"/></joint>
+<joint name="r_finger_joint" type="fixed"><parent link="gripper_link"/><child link="r_finger"/>
+  <origin xyz="0 -0.015 0"/></joint>
+"""
+    path = tmp_path / "fingers.urdf"
+    path.write_text(arm_urdf(fingers))
+    robot = load_robot(path)
+    assert robot.target_frame == "gripper_link"
+    coords = np.array([0.3, 0.4, -0.5, 0.2])
+    assert min(_moves(robot, j, coords) for j in robot.compliant_joints) > 0.04

@@ -12,7 +12,9 @@ chains of any lengths (a hand whose thumb is longer than its fingers: g1's); joi
 in its name or its link's, on an arm: z1's ``jointGripper``, so100's ``gripper``) do not lengthen
 a chain. The tip frame is, among the frames carried by the tip joint, the one farthest from the
 joint's origin, a link or tool frame before a joint frame, the last in model order on a tie;
-a sensor's frame (a camera, range finder or IMU, by its name) only when there is no other.
+a sensor's frame (a camera, range finder or IMU, by its name) only when there is no other;
+frames at different places tied for farthest (a gripper's fixed fingers) give the frame they
+branch from.
 When every such frame sits at the joint's origin (double_pendulum's ``link2``), the default
 target is the tip link's centre of mass, off the joint's axis, instead of that origin.
 """
@@ -78,16 +80,15 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
     closing_frames = set(closure_frames) | {
         model.frames[model.frames[i].parentFrame].name for i in range(len(model.frames))
         if model.frames[i].name in closure_frames}
-    best, best_key = None, None
+    keys = {}
     for fid, frame in enumerate(model.frames):
         if frame.parentJoint != tip or frame.name in closing_frames or _below(model, fid,
                                                                                 gripper):
             continue
         distance = float(np.linalg.norm(frame.placement.translation))
-        key = (not _sensor(model, fid), round(distance, 9), frame.type != pin.FrameType.JOINT,
-               fid)
-        if best_key is None or key > best_key:
-            best, best_key = frame.name, key
+        keys[fid] = (not _sensor(model, fid), round(distance, 9),
+                     frame.type != pin.FrameType.JOINT, fid)
+    best = model.frames[_branch_point(model, keys)].name if keys else None
     hand = _with_descendants(model, gripper) if best is None else gripper
     if hand != gripper:
         # the tip is a joint below a coupled jaw (PR2's finger tips): count it with the hand
@@ -95,6 +96,27 @@ def default_target_frame(model: pin.Model, closure_frames: frozenset[str] = froz
     if best is None:  # only loop-closing frames on the tip joint
         return default_target_frame(model, frozenset(), gripper) if closure_frames else None
     return best
+
+
+def _branch_point(model: pin.Model, keys: dict[int, tuple]) -> int:
+    """The frame of largest key, or, when frames at different places tie for it (a
+    gripper's fixed fingers at the same distance on either side: the Robotics Toolbox Fetch's
+    ``l_``/``r_gripper_finger_link``), the frame they branch from (``gripper_link``)."""
+    best = max(keys, key=keys.__getitem__)
+    tied = [f for f in keys if keys[f][:2] == keys[best][:2]]
+    places = {tuple(np.round(model.frames[f].placement.translation, 9)) for f in tied}
+    if len(places) < 2:
+        return best
+    chains = [_ancestors(model, f) for f in tied]
+    return next(f for f in chains[0] if all(f in chain for chain in chains[1:]))
+
+
+def _ancestors(model: pin.Model, frame_id: int) -> list[int]:
+    """``frame_id`` and the frames it hangs from (through ``parentFrame``), nearest first."""
+    out = [frame_id]
+    while out[-1] > 0 and len(out) <= len(model.frames):
+        out.append(model.frames[out[-1]].parentFrame)
+    return out
 
 
 _SENSOR_WORDS = ("camera", "optical", "depth", "color", "rgb", "infra", "range", "imu",
