@@ -239,7 +239,7 @@ def test_masses_unknown_lumped_fit_predicts_held_out_poses(ur10):
     fams = ["frame", "markers", "gravity_lumped"]
     model = PoseModel(ur10, train.markers, tuple(fams), starting_frame(train), None)
     fit = fit_pose_model(model, train, rows_of(model, train), fams)
-    from stiffness.calibration.pose_diagnose import validation_errors
+    from stiffness.calibration.pose_register import validation_errors
     held = validation_errors(fit.model, fit.x, test)
     assert held["rms"] < 1.4 * np.sqrt(3) * NOISE  # 3-D error RMS of pure noise: sqrt(3) sigma
     dropped = fit.identifiability.to_dict([p.label for p in model.parameters])["dropped"]

@@ -36,9 +36,9 @@ from pose_truth import add_intervals
 from stats import Coverage, binomial_consistent
 
 from stiffness.calibration.pose_campaign import write_pose_campaign
-from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_fit import PoseFit, fit_pose_model, rows_of, starting_frame
 from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_register import validation_errors
 from stiffness.cli.main import main
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot

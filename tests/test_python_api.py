@@ -246,8 +246,8 @@ def _check_pose_covariance(model: Path, other: Path) -> None:
     campaign's positions, ``J Sigma J^T`` equal to that of central differences of the
     prediction to 2e-3 of the largest entry (``evaluate``'s Jacobian, the fit's, holds the
     joint torques fixed, exact at zero compliance: 5e-4 measured with this fit's springs)."""
-    from stiffness.calibration.pose_diagnose import validation_jacobian
     from stiffness.calibration.pose_model_file import read_pose_model
+    from stiffness.calibration.pose_register import validation_jacobian
 
     doc = json.loads(model.read_text())
     fitted = [p for p in doc["parameters"] if p["fitted"]]

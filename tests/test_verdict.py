@@ -20,9 +20,9 @@ from stiffness.calibration.diagnosis_report import format_report
 from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import STRAY_SHARE
 from stiffness.calibration.pose_diagnose import _fit as _pose_fit
-from stiffness.calibration.pose_diagnose import validation_errors
 from stiffness.calibration.pose_fit import held_out_rms
 from stiffness.calibration.pose_page import render_pose_diagnosis
+from stiffness.calibration.pose_register import validation_errors
 from stiffness.calibration.pose_report import format_pose_report
 from stiffness.calibration.selection import BIC_MARGIN, fit_model
 from stiffness.elastic.effects import candidates

@@ -75,6 +75,7 @@ from stiffness.calibration.outliers import flag_fit
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
+from stiffness.calibration.pose_register import REFIT_REFUSED, validation_campaign
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -133,8 +134,8 @@ def diagnose(campaign: Campaign, max_steps: int | None = ..., seed: int = ..., p
              progress: Callable[[str], None] | None = ..., workers: int | None = ...,
              loss: str = ..., effect_settings: dict[str, dict] | None = ...,
              masses: str = ..., validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
-             families: Sequence[str] = ..., not_families: Sequence[str] = ...
-             ) -> Diagnosis: ...
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...,
+             refit: Sequence[str] = ...) -> Diagnosis: ...
 
 
 @overload
@@ -143,8 +144,8 @@ def diagnose(campaign: PoseCampaign, max_steps: int | None = ..., seed: int = ..
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
              validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
-             families: Sequence[str] = ..., not_families: Sequence[str] = ...
-             ) -> PoseDiagnosis: ...
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...,
+             refit: Sequence[str] = ...) -> PoseDiagnosis: ...
 
 
 @overload
@@ -153,8 +154,8 @@ def diagnose(campaign: str | os.PathLike, max_steps: int | None = ..., seed: int
              workers: int | None = ..., loss: str = ...,
              effect_settings: dict[str, dict] | None = ..., masses: str = ...,
              validate: Campaign | PoseCampaign | str | os.PathLike | None = ...,
-             families: Sequence[str] = ..., not_families: Sequence[str] = ...
-             ) -> Diagnosis | PoseDiagnosis: ...
+             families: Sequence[str] = ..., not_families: Sequence[str] = ...,
+             refit: Sequence[str] = ...) -> Diagnosis | PoseDiagnosis: ...
 
 
 def diagnose(
@@ -170,6 +171,7 @@ def diagnose(
     validate: Campaign | PoseCampaign | str | os.PathLike | None = None,
     families: Sequence[str] = (),
     not_families: Sequence[str] = (),
+    refit: Sequence[str] = (),
 ) -> Diagnosis | PoseDiagnosis:
     """Diagnose what the campaign's baseline model misses (see the module docstring).
 
@@ -179,7 +181,7 @@ def diagnose(
     A pose campaign (``kind = "poses"``) is diagnosed by
     :func:`stiffness.calibration.pose_diagnose.diagnose_poses` (its ``PoseDiagnosis.to_dict``
     is the command's ``--json`` there), with ``max_steps``, ``seed``, ``progress``,
-    ``loss``, ``masses``, ``validate``, ``families`` and ``not_families``.
+    ``loss``, ``masses``, ``validate``, ``families``, ``not_families`` and ``refit``.
 
     Parameters
     ----------
@@ -219,22 +221,31 @@ def diagnose(
         names of the library, each at its best place by BIC, or labels ``name(where)``), and
         families never tried (``--not``); recorded under ``selection`` as ``forced`` and
         ``forbidden``.
+    refit
+        Pose campaigns, with ``validate``: the families fitted to the validation campaign
+        before each step's model is judged there, as :func:`stiffness.validate`'s ``refit``
+        (``("frame",)``: ``--refit-frame``, a campaign of another day, the tracker moved;
+        ``("frame", "markers")``: ``--refit-markers``, a marker plate mounted again); ``()``:
+        none, each step's measuring frame registered there all the same (``frame_refit``).
 
     Raises
     ------
     StiffnessError
         If a configuration cannot be assembled, there are too few residuals, or
-        ``max_steps`` is negative.
+        ``max_steps`` is negative; a ``refit`` on a deflection campaign (no measuring frame)
+        or without ``validate``.
     """
     if isinstance(campaign, PoseCampaign) or (
             not isinstance(campaign, Campaign) and campaign_kind(campaign) == "poses"):
         if not isinstance(campaign, PoseCampaign):
             campaign = load_pose_campaign(campaign)
         return diagnose_poses(campaign, masses=masses, seed=seed,
-                              validate=_pose_validation(validate),
+                              validate=validation_campaign(validate),
                               progress=progress, loss=loss, families=families,
                               not_families=not_families, max_steps=max_steps,
-                              effect_settings=effect_settings)
+                              effect_settings=effect_settings, refit=refit)
+    if refit:
+        raise StiffnessError(REFIT_REFUSED)
     max_steps = MAX_STEPS if max_steps is None else max_steps
     _check_options(max_steps, loss, masses, (seed, workers))
     forbidden = _forbidden(not_families)
@@ -245,25 +256,6 @@ def diagnose(
     result = _diagnose_deflections(campaign, max_steps, seed, propose, progress, workers, loss,
                                    effect_settings or {}, masses, forbidden, forced)
     return result if other is None or validate is None else validated(result, other, validate)
-
-
-def _pose_validation(validate: Campaign | PoseCampaign | str | os.PathLike | None
-                     ) -> PoseCampaign | None:
-    """The pose campaign a pose diagnosis is validated on (loaded from its path), or ``None``.
-
-    Raises
-    ------
-    StiffnessError
-        A deflection campaign given to validate a pose diagnosis (one line).
-    """
-    if isinstance(validate, Campaign) or (validate is not None and not isinstance(
-            validate, PoseCampaign) and campaign_kind(validate) != "poses"):
-        name = repr(validate.name) if isinstance(validate, Campaign) else str(validate)
-        raise StiffnessError("validate a pose campaign's diagnosis on another pose "
-                             f"campaign, not on the deflection campaign {name}")
-    if validate is not None and not isinstance(validate, PoseCampaign):
-        return load_pose_campaign(validate)
-    return validate
 
 
 def _forbidden(not_families: Sequence[str]) -> tuple[str, ...]:

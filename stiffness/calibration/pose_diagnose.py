@@ -29,12 +29,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
 
-from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import held_reason, namable, settle
 from stiffness.calibration.pose_campaign import PoseCampaign
@@ -47,14 +46,13 @@ from stiffness.calibration.pose_fit import (
     held_out_rms,
     linearised_rss,
     noise_terms,
-    predict,
     rows_of,
     starting_frame,
 )
-from stiffness.calibration.pose_model import Marker, PoseModel
-from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
+from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.pose_parameters import PoseJudge
 from stiffness.calibration.pose_plausibility import unphysical_values
+from stiffness.calibration.pose_register import check_refit, stage_errors
 from stiffness.calibration.search import (
     Candidate,
     Refusal,
@@ -285,7 +283,8 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                    families: Sequence[str] = (), not_families: Sequence[str] = (),
                    base_tilt: Sequence[float] | None = None, workers: int | None = None,
                    bar: Bar | None = None, max_steps: int | None = None,
-                   effect_settings: dict[str, dict] | None = None) -> PoseDiagnosis:
+                   effect_settings: dict[str, dict] | None = None,
+                   refit: Sequence[str] = ()) -> PoseDiagnosis:
     """Close the gap between the nominal robot and the measured poses, family by family.
 
     Parameters
@@ -298,7 +297,9 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         (leave one configuration out, :func:`~stiffness.calibration.pose_fit.held_out_rms`)
         draws nothing at random.
     validate
-        Another pose campaign of the same robot and markers, evaluated at every step.
+        Another pose campaign of the same robot and markers, evaluated at every step
+        (:func:`~stiffness.calibration.pose_register.stage_errors`: each step's measuring frame
+        registered anew there, its ``frame_refit``).
     progress
         Called with one line of text as each step starts (``None``: quiet).
     loss
@@ -332,15 +333,21 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
         ``base_m`` (m) of a ``gravity_compensator(JOINT)`` (``diagnose
         --compensator-geometry``; model setting ``compensator_geometry_m``, kept in the model
         file); default the library's geometry.
+    refit
+        With ``validate``: the families fitted to it before each step's model is judged there
+        (``("frame",)``, ``diagnose --refit-frame``: the tracker moved; ``("frame",
+        "markers")``, ``--refit-markers``: a marker plate mounted again); ``()``: none.
 
     Raises
     ------
     StiffnessError
         An unknown ``masses`` or ``loss``; a forced or forbidden name that is not a candidate
         family of ``masses``, or a family both forced and forbidden, or forced before the
-        family it acts through; a negative ``max_steps``.
+        family it acts through; a negative ``max_steps``; a ``refit`` not of
+        :data:`~stiffness.calibration.pose_register.REFITTABLE`, or without ``validate``.
     """
     say = progress or (lambda text: None)
+    refit = check_refit(refit, validate is not None)
     check_masses(masses)
     check_max_steps(max_steps)
     check_loss(loss)
@@ -360,12 +367,12 @@ def diagnose_poses(campaign: PoseCampaign, masses: str = "known", seed: int = 0,
                       _tried(masses, forced, forbidden, empty))
     steps = kind.steps
     steps.append(Step("baseline", base, 0.0, held_out_rms(base, campaign, draw("held-out")),
-                      validation=_validation(base, validate)))  # the markers checked first
+                      validation=_validation(base, validate, refit)))  # the markers checked first
     for f in forced:
         kind.force(f, loss)
     _, stop = search(kind, steps[-1].fit, steps[-1].cv_rms, max_steps)
     for step in steps[1:]:
-        step.validation = _validation(step.fit, validate)
+        step.validation = _validation(step.fit, validate, refit)
     outliers, sigma = flag_pose_outliers(steps[-1].fit, campaign)
     return PoseDiagnosis(kind.rejected, judge, kind.not_judged, campaign=campaign, steps=steps,
                          masses=masses, loss=loss, forbidden=sorted(forbidden), stop_reason=stop,
@@ -694,97 +701,6 @@ class PoseSearch:
         return {f: b - base for f, b in zip(terms, bics, strict=True)}
 
 
-def _validation(fit: PoseFit, other: PoseCampaign | None) -> dict | None:
-    return None if other is None else validation_errors(fit.model, fit.x, other)
-
-
-def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
-                      residual: np.ndarray | None = None) -> dict:
-    """3-D position errors of ``campaign`` under a fitted model, without refitting;
-    ``residual``: its measured minus predicted positions (m) when already computed
-    (:func:`validation_residual` or :func:`validation_jacobian` of the same arguments), else
-    predicted here.
-
-    Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``std_error``,
-    ``max_error`` (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and
-    ``markers`` (the same keys per marker); with measured orientations also ``rotation_rms``,
-    ``rotation_mean_error``, ``rotation_max_error`` (of the orientation error's angle) and
-    ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
-    """
-    model, campaign = _on_campaign(model, campaign)
-    if residual is None:
-        residual = campaign.positions - predict(model, x, campaign)
-    err = np.linalg.norm(residual, axis=2)
-    lu = campaign.units.length_to_si
-    out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
-    out["markers"] = {m.name: {**error_summary(err[:, k], lu), "unit": campaign.units.length}
-                      for k, m in enumerate(campaign.markers)}
-    if campaign.rotations is not None:
-        angle = orientation_errors(model, x, campaign, rows_of(model, campaign))
-        out.update(rotation_summary(angle, campaign.units))
-        for k, m in enumerate(campaign.markers):
-            out["markers"][m.name].update(rotation_summary(angle[:, k], campaign.units))
-    return out
-
-
-def validation_residual(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
-                        ) -> np.ndarray:
-    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
-    was not seen; markers in the model's order, as :func:`validation_errors` reads them)."""
-    model, campaign = _on_campaign(model, campaign)
-    return campaign.positions - predict(model, x, campaign)
-
-
-def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
-    was not seen; markers in the model's order, as :func:`validation_errors` reads them) and
-    the prediction's Jacobian (n, M, 3, p) with respect to ``x``
-    (:meth:`~stiffness.calibration.pose_model.PoseModel.evaluate`, the fit's)."""
-    model, campaign = _on_campaign(model, campaign)
-    y, jac = model.evaluate(x, rows_of(model, campaign))
-    assert jac is not None
-    return campaign.positions - y, jac
-
-
-def validation_orientations(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """Measured minus predicted orientations of ``campaign``'s seen oriented markers (N_r,)
-    in rad (minus the error ``log(R_pred R_meas^T)`` the fit takes,
-    :class:`~stiffness.calibration.pose_orientation.PoseObservations`; row by row, markers in
-    the model's order) and its prediction's Jacobian (N_r, p) with respect to ``x``. The
-    campaign measures orientations and declares both noise stds."""
-    model, campaign = _on_campaign(model, campaign)
-    observed = PoseObservations(model, campaign, rows_of(model, campaign))
-    residual, jac = observed.evaluate(x)
-    assert jac is not None and observed.weight is not None
-    positions = int(observed.observed.sum())
-    return -residual[positions:] / observed.weight, jac[positions:] / observed.weight
-
-
-def _on_campaign(model: PoseModel, campaign: PoseCampaign) -> tuple[PoseModel, PoseCampaign]:
-    """The fitted ``model`` on ``campaign``'s robot and loads, and ``campaign`` with its markers
-    in the model's order (:func:`_in_model_order`): what every validation function evaluates."""
-    campaign = _in_model_order(model.markers, campaign)
-    return PoseModel(campaign.robot, model.markers, model.families,
-                     (model.rotation0, model.translation0), campaign.loads,
-                     model.settings), campaign
-
-
-def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
-    """``campaign`` with its markers in the model's order, one of the model's it does not
-    measure unseen on every row (fallen off, or left out, on another day); one the model lacks,
-    or on another frame, is refused."""
-    given = {m.name: k for k, m in enumerate(campaign.markers)}
-    model = {m.name: m.frame for m in fitted}
-    for m in campaign.markers:
-        if model.get(m.name) != m.frame:
-            raise StiffnessError(f"marker {m.name!r} (on {m.frame}) of the campaign is not a "
-                                 f"marker of the model ({', '.join(model)}); validate on a "
-                                 "campaign of the model's markers")
-
-    def pick(values: np.ndarray) -> np.ndarray:
-        return np.stack([values[:, given[m.name]] if m.name in given
-                         else np.full(values[:, 0].shape, np.nan) for m in fitted], axis=1)
-    return replace(campaign, markers=list(fitted), positions=pick(campaign.positions),
-                   rotations=None if campaign.rotations is None else pick(campaign.rotations))
+def _validation(fit: PoseFit, other: PoseCampaign | None, refit: tuple[str, ...]
+                ) -> dict | None:
+    return None if other is None else stage_errors(fit.model, fit.x, other, refit)

@@ -14,7 +14,7 @@ from stiffness.calibration.fit_verdict import verdict_sentence
 from stiffness.calibration.outliers import outliers_section
 from stiffness.calibration.parameter_section import parameter_rows, parameter_table
 from stiffness.calibration.steps_table import stage_section, steps_table
-from stiffness.calibration.validation_page import validation_section
+from stiffness.calibration.validation_page import stage_frame_lines, validation_section
 from stiffness.figures import png
 from stiffness.htmlpage import (
     contents,
@@ -165,6 +165,7 @@ def render_pose_diagnosis(d: dict, stage_png: bytes | None, prov: dict,
                      "OTHER_CAMPAIGN</code> for the held-out error after each step.</p>")
     else:
         parts += stage_section(d)
+        parts += [f"<p>{esc(line)}</p>" for line in stage_frame_lines(d)]
         parts.append(figure(STAGE_FIGURE, stage_png,
                             f"Held-out 3-D marker error after each step ({unit})"))
     how = ("run <code>stiffness diagnose CAMPAIGN --validate OTHER_CAMPAIGN</code> (or "

@@ -13,19 +13,42 @@ the residuals at their robust std, 1.4826 times their median absolute value, or 
 noise if larger: FIGAROH's TIAGo campaigns have ghost markers 0.2-1 m off, which moved a
 least-squares registration by centimetres), so what is left is the robot's calibration's
 error; the verdict's chi-square then counts six parameters fitted.
+
+The same registration judges each step of a pose diagnosis on its validation campaign
+(``stiffness diagnose --validate OTHER --refit-frame``, :func:`stage_errors`). Here too live
+the fitted model's errors, residuals and Jacobians on another campaign of its robot, without
+refitting (:func:`validation_errors`, :func:`validation_jacobian`: ``stiffness validate``'s and
+the stage table's).
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 
-from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_diagnose import validation_jacobian
-from stiffness.calibration.pose_model import PoseModel
+from stiffness.calibration.breakdown import error_summary, rotation_summary
+from stiffness.calibration.campaign import Campaign, campaign_kind
+from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
+from stiffness.calibration.pose_fit import predict, rows_of
+from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
+from stiffness.errors import StiffnessError, wrong_argument
 
 #: The normal distribution's std over its median absolute value.
 ROBUST_STD = 1.4826
+
+#: The families a validation may fit to its campaign (``--refit-frame``, ``--refit-markers``).
+REFITTABLE = ("frame", "markers")
+
+#: Why a deflection campaign's validation refuses ``refit`` (``--refit-frame``,
+#: ``--refit-markers``): ``stiffness validate``'s and ``diagnose --validate``'s.
+REFIT_REFUSED = ("--refit-frame and --refit-markers take pose campaigns: a deflection "
+                 "campaign measures loaded minus unloaded positions, with no measuring frame "
+                 "to fit; drop them")
 
 #: Gauss-Newton iterations at most, and the step (in m, or rad times the campaign's extent) at
 #: which they stop.
@@ -77,3 +100,171 @@ def refit_frame(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
                "iterations": iterations,
                "rms": float(np.sqrt(np.mean(np.sum(residual[seen] ** 2, axis=1))))}
 
+
+
+def check_refit(refit: Sequence[str], validated: bool = True) -> tuple[str, ...]:
+    """``refit`` as a tuple of :data:`REFITTABLE` names (``()``: nothing fitted), given
+    with a validation campaign (``validated``).
+
+    Raises
+    ------
+    StiffnessError
+        Not a sequence of those names, or names without a validation campaign (one line).
+    """
+    if not isinstance(refit, tuple | list) or not all(isinstance(f, str) and f in REFITTABLE
+                                                      for f in refit):
+        raise wrong_argument("refit", refit, "() or a tuple of " + ", ".join(
+            map(repr, REFITTABLE)))
+    if refit and not validated:
+        raise StiffnessError("refit fits the measuring frame to a validation campaign; give "
+                             "validate (diagnose --validate OTHER) or drop it")
+    return tuple(dict.fromkeys(refit))
+
+
+def registered(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
+               refit: Sequence[str] = ()) -> tuple[np.ndarray, dict]:
+    """The parameters a fitted model is judged with on ``campaign``, and its measuring frame
+    registered anew there (:func:`refit_frame`, in every case).
+
+    Returns
+    -------
+    x, frame_refit
+        ``x`` with the families of ``refit`` fitted to ``campaign`` (``()``: ``x`` itself),
+        and the registration as ``validate --json``'s ``frame_refit``: ``applied`` (``refit``
+        given: the errors are after it), ``families`` (those fitted, ``["frame"]`` when none
+        was asked), ``parameters`` (their identifiable count), ``rms`` (the 3-D RMS after it),
+        ``translation`` and ``unit`` (the campaign's length unit), ``rotation_deg``.
+
+    Raises
+    ------
+    StiffnessError
+        A ``refit`` not of :data:`REFITTABLE`; the campaign's markers not the model's.
+    """
+    refit = check_refit(refit)
+    moved, registration = refit_frame(model, x, campaign, refit or ("frame",))
+    lu = campaign.units.length_to_si
+    return (moved if refit else np.asarray(x, dtype=float)), {
+        "applied": bool(refit), "families": list(refit) or ["frame"],
+        "parameters": registration["parameters"], "rms": registration["rms"] / lu,
+        "translation": [v / lu for v in registration["translation"]],
+        "rotation_deg": registration["rotation_deg"], "unit": campaign.units.length}
+
+
+def validation_campaign(validate: Campaign | PoseCampaign | str | os.PathLike | None
+                        ) -> PoseCampaign | None:
+    """The pose campaign a pose diagnosis is validated on (loaded from its path), or ``None``.
+
+    Raises
+    ------
+    StiffnessError
+        A deflection campaign given to validate a pose diagnosis (one line).
+    """
+    if isinstance(validate, Campaign) or (validate is not None and not isinstance(
+            validate, PoseCampaign) and campaign_kind(validate) != "poses"):
+        name = repr(validate.name) if isinstance(validate, Campaign) else str(validate)
+        raise StiffnessError("validate a pose campaign's diagnosis on another pose "
+                             f"campaign, not on the deflection campaign {name}")
+    if validate is not None and not isinstance(validate, PoseCampaign):
+        return load_pose_campaign(validate)
+    return validate
+
+
+def stage_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
+                 refit: Sequence[str] = ()) -> dict:
+    """A diagnosis step's model on its validation campaign (a stage of ``diagnose
+    --validate``): :func:`validation_errors` with the families of ``refit`` fitted to the
+    campaign first (``()``: none), and its ``frame_refit`` (:func:`registered`)."""
+    x, frame = registered(model, x, campaign, refit)
+    return {**validation_errors(model, x, campaign), "frame_refit": frame}
+
+
+def validation_errors(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
+                      residual: np.ndarray | None = None) -> dict:
+    """3-D position errors of ``campaign`` under a fitted model, without refitting;
+    ``residual``: its measured minus predicted positions (m) when already computed
+    (:func:`validation_residual` or :func:`validation_jacobian` of the same arguments), else
+    predicted here.
+
+    Returns the keys of ``stiffness validate --json``: ``rms``, ``mean_error``, ``std_error``,
+    ``max_error`` (of the 3-D error norm), ``unit`` (the campaign's length unit), ``rows`` and
+    ``markers`` (the same keys per marker); with measured orientations also ``rotation_rms``,
+    ``rotation_mean_error``, ``rotation_max_error`` (of the orientation error's angle) and
+    ``rotation_unit`` (the campaign's rotation unit), overall and per marker.
+    """
+    model, campaign = _on_campaign(model, campaign)
+    if residual is None:
+        residual = campaign.positions - predict(model, x, campaign)
+    err = np.linalg.norm(residual, axis=2)
+    lu = campaign.units.length_to_si
+    out = {**error_summary(err, lu), "rows": campaign.n_rows, "unit": campaign.units.length}
+    out["markers"] = {m.name: {**error_summary(err[:, k], lu), "unit": campaign.units.length}
+                      for k, m in enumerate(campaign.markers)}
+    if campaign.rotations is not None:
+        angle = orientation_errors(model, x, campaign, rows_of(model, campaign))
+        out.update(rotation_summary(angle, campaign.units))
+        for k, m in enumerate(campaign.markers):
+            out["markers"][m.name].update(rotation_summary(angle[:, k], campaign.units))
+    return out
+
+
+def validation_residual(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                        ) -> np.ndarray:
+    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
+    was not seen; markers in the model's order, as :func:`validation_errors` reads them)."""
+    model, campaign = _on_campaign(model, campaign)
+    return campaign.positions - predict(model, x, campaign)
+
+
+def validation_jacobian(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus predicted positions (n, M, 3) of ``campaign`` (m; NaN where a marker
+    was not seen; markers in the model's order, as :func:`validation_errors` reads them) and
+    the prediction's Jacobian (n, M, 3, p) with respect to ``x``
+    (:meth:`~stiffness.calibration.pose_model.PoseModel.evaluate`, the fit's)."""
+    model, campaign = _on_campaign(model, campaign)
+    y, jac = model.evaluate(x, rows_of(model, campaign))
+    assert jac is not None
+    return campaign.positions - y, jac
+
+
+def validation_orientations(model: PoseModel, x: np.ndarray, campaign: PoseCampaign
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Measured minus predicted orientations of ``campaign``'s seen oriented markers (N_r,)
+    in rad (minus the error ``log(R_pred R_meas^T)`` the fit takes,
+    :class:`~stiffness.calibration.pose_orientation.PoseObservations`; row by row, markers in
+    the model's order) and its prediction's Jacobian (N_r, p) with respect to ``x``. The
+    campaign measures orientations and declares both noise stds."""
+    model, campaign = _on_campaign(model, campaign)
+    observed = PoseObservations(model, campaign, rows_of(model, campaign))
+    residual, jac = observed.evaluate(x)
+    assert jac is not None and observed.weight is not None
+    positions = int(observed.observed.sum())
+    return -residual[positions:] / observed.weight, jac[positions:] / observed.weight
+
+
+def _on_campaign(model: PoseModel, campaign: PoseCampaign) -> tuple[PoseModel, PoseCampaign]:
+    """The fitted ``model`` on ``campaign``'s robot and loads, and ``campaign`` with its markers
+    in the model's order (:func:`_in_model_order`): what every validation function evaluates."""
+    campaign = _in_model_order(model.markers, campaign)
+    return PoseModel(campaign.robot, model.markers, model.families,
+                     (model.rotation0, model.translation0), campaign.loads,
+                     model.settings), campaign
+
+
+def _in_model_order(fitted: list[Marker], campaign: PoseCampaign) -> PoseCampaign:
+    """``campaign`` with its markers in the model's order, one of the model's it does not
+    measure unseen on every row (fallen off, or left out, on another day); one the model lacks,
+    or on another frame, is refused."""
+    given = {m.name: k for k, m in enumerate(campaign.markers)}
+    model = {m.name: m.frame for m in fitted}
+    for m in campaign.markers:
+        if model.get(m.name) != m.frame:
+            raise StiffnessError(f"marker {m.name!r} (on {m.frame}) of the campaign is not a "
+                                 f"marker of the model ({', '.join(model)}); validate on a "
+                                 "campaign of the model's markers")
+
+    def pick(values: np.ndarray) -> np.ndarray:
+        return np.stack([values[:, given[m.name]] if m.name in given
+                         else np.full(values[:, 0].shape, np.nan) for m in fitted], axis=1)
+    return replace(campaign, markers=list(fitted), positions=pick(campaign.positions),
+                   rotations=None if campaign.rotations is None else pick(campaign.rotations))

@@ -11,6 +11,7 @@ from stiffness.calibration.parameter_section import parameter_lines
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_page import not_added
 from stiffness.calibration.steps_table import stage_table, stages, step_lines
+from stiffness.calibration.validation_page import stage_frame_lines
 
 
 def format_pose_report(d: PoseDiagnosis) -> str:
@@ -29,7 +30,7 @@ def format_pose_report(d: PoseDiagnosis) -> str:
         f"; under {d.loss}, the root of the held-out loss per component: the RMS for Gaussian "
         "residuals, less for large ones, not comparable with RMS")])
     if named := stages(summary):
-        lines += ["", *stage_table(named)]
+        lines += ["", *stage_table(named), *stage_frame_lines(summary)]
     if d.rejected:
         lines.append("not added (dBIC or held-out RMS): "
                      + not_added(d.rejected, d.not_judged))

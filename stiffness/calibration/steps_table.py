@@ -101,7 +101,7 @@ def steps_table(steps: list[dict], unit: str) -> str:
 
 def stage_table(named: list[tuple[str, dict]]) -> list[str]:
     """The text lines: per stage (a name and its validation object,
-    :func:`~stiffness.calibration.pose_diagnose.validation_errors` or
+    :func:`~stiffness.calibration.pose_register.validation_errors` or
     :func:`~stiffness.calibration.validation.deflection_errors`), the held-out 3-D error's
     ``mean ± std (max)`` overall and per marker; the lines of ``diagnose --validate`` (one per
     step, :func:`stages`) and of ``stiffness validate`` (one model)."""
@@ -126,10 +126,22 @@ def stage_section(d: dict) -> list[str]:
     return [table(f"Held-out 3-D error per stage ({d['unit']})",
                   ["stage", "RMS", *(f"{n}: mean ± std (max)" for n in names),
                    *(VERDICT_COLUMNS[k] for k in extra)], rows,
-                  "Each step's model evaluated on the validation campaign without refitting: "
-                  "RMS, and mean, standard deviation and maximum of the 3-D error, overall and "
-                  "per marker" + ("; RMS / noise: over sqrt(3) noise std (1 for a model that "
-                                  "predicts to the noise)." if extra else "."))]
+                  "Each step's model evaluated on the validation campaign "
+                  + refitted(named[-1][1]) + ": RMS, and mean, standard deviation and "
+                  "maximum of the 3-D error, overall and per marker"
+                  + ("; RMS / noise: over sqrt(3) noise std (1 for a model that predicts to "
+                     "the noise)." if extra else "."))]
+
+
+def refitted(v: dict) -> str:
+    """How a validation object ``v`` was judged: without refitting, or with the families of
+    its ``frame_refit`` fitted to the campaign (``--refit-frame``, ``--refit-markers``)."""
+    frame = v.get("frame_refit") or {}
+    if not frame.get("applied"):
+        return "without refitting"
+    return ("with its " + " and ".join({"frame": "measuring frame", "markers": "marker "
+                                        "offsets"}[f] for f in frame["families"])
+            + " fitted there, the rest not refitted")
 
 
 def _cells(named: list[tuple[str, dict]]) -> tuple[list[str], list[list[str]]]:

@@ -4,7 +4,7 @@ deflection model on a deflection campaign (:func:`deflection_errors`).
 
 For a pose campaign (``kind = "poses"``) the model is a pose calibration's ``final-model.json``
 (its measuring frame and marker offsets are the model's) and the error is the 3-D position
-error, overall and per marker (:func:`stiffness.calibration.pose_diagnose.validation_errors`);
+error, overall and per marker (:func:`stiffness.calibration.pose_register.validation_errors`);
 for a deflection campaign the model is a model file of ``identify`` or ``diagnose`` (or a
 pose calibration's, the elastic model :func:`~stiffness.elastic.model_file.read_model_file`
 reads of it) and the error is the measured deflection minus the model's prediction under
@@ -61,13 +61,13 @@ from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind, load_campaign
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, flag_outliers
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
-from stiffness.calibration.pose_diagnose import (
+from stiffness.calibration.pose_model_file import read_pose_model
+from stiffness.calibration.pose_register import (
     validation_errors,
     validation_jacobian,
     validation_orientations,
     validation_residual,
 )
-from stiffness.calibration.pose_model_file import read_pose_model
 from stiffness.calibration.selection import Noise, above_noise
 from stiffness.elastic.file_model import fitted_prediction
 from stiffness.elastic.model import ElasticModel
@@ -251,7 +251,7 @@ class Validation:
     errors
         The error summary in the campaign's length unit (``rms``, ``mean_error``,
         ``std_error``, ``max_error``, ``unit``, ``rows``, ``markers``...:
-        :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
+        :func:`~stiffness.calibration.pose_register.validation_errors`,
         :func:`deflection_errors`).
     robot
         The robot both are of: ``source``, ``name`` (:attr:`Robot.title`), ``coordinates``,
@@ -421,7 +421,8 @@ def validate(model: ModelFile | str | os.PathLike,
     ModelRobotError
         The campaign is of another robot than the model's.
     StiffnessError
-        A deflection model with a pose campaign, or a file that cannot be read.
+        A deflection model with a pose campaign, or a file that cannot be read; a ``refit``
+        on a deflection campaign.
     """
     if not isinstance(model, ModelFile | str | os.PathLike):
         raise wrong_argument("model", model, "a model file's path (str or os.PathLike) or a "
@@ -437,6 +438,8 @@ def validate(model: ModelFile | str | os.PathLike,
             "calibration on a pose or a deflection campaign")
     if isinstance(model, ModelFile) or kind == "deflections":  # a pose calibration read as
         # the elastic model load_model makes of it (its springs and elastic families)
+        if refit:
+            raise StiffnessError(pose_register.REFIT_REFUSED)
         declared = model if isinstance(model, ModelFile) else read_model_file(model)
         return validate_deflection_model(  # a deflection campaign: kind said so
             declared, name, cast("Campaign | str | os.PathLike", campaign))
@@ -446,12 +449,11 @@ def validate(model: ModelFile | str | os.PathLike,
     robot = same_robot(cal.source, lambda: read_pose_model(model).robot, poses.robot,
                        poses.robot.name, model, campaign_name(campaign))
     calibration = read_pose_model(model, poses.robot)
-    moved, registration = pose_register.refit_frame(calibration.model, calibration.x, poses,
-                                                    tuple(refit) or ("frame",))
+    refit = pose_register.check_refit(refit)
+    moved, registered = pose_register.registered(calibration.model, calibration.x, poses, refit)
     slices = calibration.model.slices()
     frame = [k for f in refit for k in range(slices[f].start, slices[f].stop)]
-    if refit:
-        calibration = replace(calibration, x=moved)
+    calibration = replace(calibration, x=moved)
     # the positions predicted once: with the Jacobian where the parameters' covariance needs it
     residual, jac = (validation_jacobian(calibration.model, calibration.x, poses)
                      if calibration.covariance is not None else
@@ -482,14 +484,9 @@ def validate(model: ModelFile | str | os.PathLike,
                                 poses.units.length_to_si)
     flagged = flagged_rows(-residual / poses.units.length_to_si, noise, poses.labels, poses.lines,
                            [f"{m.name}_{a}" for m in calibration.model.markers for a in "xyz"])
-    lu = poses.units.length_to_si
-    registered = {"applied": bool(refit), "families": list(refit) or ["frame"],
-                  "parameters": registration["parameters"], "rms": registration["rms"] / lu,
-                  "translation": [v / lu for v in registration["translation"]],
-                  "rotation_deg": registration["rotation_deg"], "unit": poses.units.length}
     return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term,
                       rotations, flagged, registered,
-                      registration["parameters"] if refit else 0)
+                      registered["parameters"] if refit else 0)
 
 
 def flagged_rows(residual: np.ndarray, noise: float | None, labels: list[str] | tuple[str, ...],

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, describe_outliers
-from stiffness.calibration.steps_table import stage_table
+from stiffness.calibration.steps_table import refitted, stage_table, stages
 from stiffness.htmlpage import esc, table
 
 #: The error keys of a validation record, in the table's order.
@@ -22,7 +22,7 @@ def validation_section(v: dict | None, how: str) -> list[str]:
     Parameters
     ----------
     v
-        :func:`~stiffness.calibration.pose_diagnose.validation_errors`,
+        :func:`~stiffness.calibration.pose_register.validation_errors`,
         :func:`~stiffness.calibration.validation.deflection_errors` or
         :meth:`~stiffness.calibration.validation.Validation.to_dict` (campaign length unit);
         ``None``: no validation campaign.
@@ -48,7 +48,7 @@ def validation_section(v: dict | None, how: str) -> list[str]:
     parts.append(table(f"Final model on the validation campaign ({v['rows']} rows)", headers,
                        [row("all", v)] + [row(n, m) for n, m in v["markers"].items()],
                        "3-D position error (measured minus predicted) of the final model "
-                       "without refitting: RMS, mean, standard deviation and maximum of its "
+                       + refitted(v) + ": RMS, mean, standard deviation and maximum of its "
                        "norm."))
     if v.get("verdict"):  # the text's words (format_validation)
         parts.append(f"<p>{esc(_noise_verdict(v))}</p>")
@@ -64,7 +64,7 @@ def format_validation(result: dict) -> str:
              *(_validation_row(n, r) for n, r in [("all", result), *result["markers"].items()])]
     flagged = describe_outliers([Outlier(**o) for o in result.get("outliers", [])],
                                 result.get("outlier_threshold", OUTLIER_THRESHOLD))
-    return "\n".join(lines + _frame_lines(result) + [_noise_verdict(result)] + (
+    return "\n".join(lines + frame_lines(result) + [_noise_verdict(result)] + (
         flagged if result.get("verdict") is not None else []) + ["", *stage_table(
             [("model", result)])])
 
@@ -74,10 +74,15 @@ def format_validation(result: dict) -> str:
 FRAME_SHARE = 0.5
 
 
-def _frame_lines(result: dict) -> list[str]:
-    """What registering the measuring frame anew says: after ``--refit-frame``, the motion
-    fitted; without it, when it would leave at most :data:`FRAME_SHARE` of the RMS, that the
-    error is mostly the frame's, with the flag."""
+def frame_lines(result: dict, whose: str = "the model's",
+                judged: str = "the errors and the verdict",
+                campaign: str = "this campaign") -> list[str]:
+    """What registering the measuring frame anew says (``result``: a validation object with
+    ``rms`` and ``frame_refit``): after ``--refit-frame``, the motion fitted; without it, when
+    it would leave at most :data:`FRAME_SHARE` of the RMS, that the error is mostly the
+    frame's, with the flag. ``whose`` frame it moved from, what ``judged`` is after it and
+    the ``campaign`` name the model and the campaign (``diagnose --validate``: the final
+    model's, each step's errors, the validation campaign)."""
     frame = result.get("frame_refit")
     if not frame or frame["rms"] is None or result["rms"] is None:
         return []
@@ -87,15 +92,23 @@ def _frame_lines(result: dict) -> list[str]:
     if frame["applied"]:
         what = " and ".join({"frame": "measuring frame", "markers": "marker offsets"}[f]
                             for f in frame["families"])
-        return [f"{what} fitted to this campaign: the frame moved by {motion} from the "
-                f"model's; the errors and the verdict are after it ({frame['parameters']} "
-                "parameters)"]
+        return [f"{what} fitted to {campaign}: the frame moved by {motion} from {whose}; "
+                f"{judged} are after it ({frame['parameters']} parameters)"]
     if frame["rms"] > FRAME_SHARE * result["rms"]:
         return []
-    return [f"note: the error is mostly the measuring frame's: the model's frame moved by "
+    return [f"note: the error is mostly the measuring frame's: {whose} frame moved by "
             f"{motion} leaves an RMS of {frame['rms']:.4g} {frame['unit']} "
             f"({frame['rms'] / result['rms']:.2g} of it); a campaign of another day or with "
             "the tracker moved is judged with --refit-frame"]
+
+
+def stage_frame_lines(d: dict) -> list[str]:
+    """:func:`frame_lines` of a diagnosis's stage table (``diagnose --validate``, its
+    ``--json`` object ``d``): the final step's registration, what every step's errors are
+    after with ``--refit-frame`` (none without a validation campaign)."""
+    named = stages(d)
+    return frame_lines(named[-1][1], "the final model's", "each step's errors",
+                       "the validation campaign") if named else []
 
 
 def _noise_verdict(result: dict) -> str:

@@ -29,6 +29,7 @@ from stiffness.calibration.campaign import campaign_kind, load_campaign
 from stiffness.calibration.diagnose import MAX_STEPS, diagnose
 from stiffness.calibration.diagnosis import DIAGNOSIS_FILE
 from stiffness.calibration.diagnosis_report import format_report
+from stiffness.calibration.pose_register import REFIT_REFUSED
 from stiffness.calibration.solver import LOSSES
 from stiffness.cli import flags
 from stiffness.elastic.effects import MASSES
@@ -104,6 +105,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                              "is evaluated on without refitting (the stage table: the gap "
                              "shrinking on held-out data; a deflection campaign's final "
                              "model file too, under validation)")
+    flags.add_refit_flags(parser)
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -127,6 +129,7 @@ def pose_command_line(args: argparse.Namespace) -> str:
     words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
              "--seed", str(args.seed), "--masses", args.masses]
     words += ["--validate", str(args.validate)] if args.validate else []
+    words += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
     words += ["--loss", args.loss] if args.loss != "linear" else []
     words += ["--max-steps", str(args.max_steps)] if args.max_steps is not None else []
     words += ["--families", args.families] if args.families else []
@@ -168,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
     flags.require_at_least_one(args.workers, "--workers")
     if campaign_kind(args.campaign) == "poses":
         return run_poses(args)
+    if flags.refit_from_args(args):
+        raise StiffnessError(REFIT_REFUSED)
     if args.base_tilt:
         raise StiffnessError("--base-tilt takes pose campaigns: a deflection campaign's "
                              "loaded-minus-unloaded positions do not see the base's tilt "
@@ -227,6 +232,11 @@ def run_poses(args: argparse.Namespace) -> int:
 
     campaign = load_pose_campaign(args.campaign)
     other = load_pose_campaign(args.validate) if args.validate else None
+    refit = flags.refit_from_args(args)
+    if refit and other is None:
+        raise StiffnessError("--refit-frame and --refit-markers fit the measuring frame to "
+                             "the validation campaign; give --validate OTHER_CAMPAIGN or drop "
+                             "them")
     check_out_folder(args.out)
     show = sys.stderr.isatty() and not args.quiet
     result = diagnose_poses(campaign, masses=args.masses, seed=args.seed, validate=other,
@@ -238,7 +248,7 @@ def run_poses(args: argparse.Namespace) -> int:
                             base_tilt=None if args.base_tilt is None else [
                                 math.radians(v)
                                 for v in flags.parse_list(args.base_tilt, "--base-tilt")],
-                            max_steps=args.max_steps,
+                            max_steps=args.max_steps, refit=refit,
                             effect_settings=compensator_geometry(args.compensator_geometry))
     paths = result.write(args.out, pose_command_line(args)) if args.out else None
     return _emit(args.json, result.to_dict(), lambda: format_pose_report(result), paths)

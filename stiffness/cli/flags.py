@@ -383,6 +383,26 @@ def add_model_flags(parser: argparse.ArgumentParser) -> None:
                                     "prismatic), when no --model is given; default the robot's")
 
 
+def add_refit_flags(parser: argparse.ArgumentParser) -> None:
+    """``--refit-frame`` and ``--refit-markers`` (``validate``, ``diagnose --validate``): the
+    families fitted to a pose validation campaign before a model is judged on it (read by
+    :func:`refit_from_args`)."""
+    parser.add_argument("--refit-frame", action="store_true",
+                        help="pose campaigns: fit the measuring frame (6 parameters) to the "
+                        "validation campaign before judging a model on it, the rest of the "
+                        "model as it is: a campaign of another day or with the tracker moved")
+    parser.add_argument("--refit-markers", action="store_true",
+                        help="pose campaigns: fit the markers' offsets to the validation "
+                        "campaign too (a marker plate mounted again); implies --refit-frame")
+
+
+def refit_from_args(args: argparse.Namespace) -> tuple[str, ...]:
+    """The ``refit`` of :func:`add_refit_flags`' flags: ``("frame", "markers")``,
+    ``("frame",)`` or ``()``."""
+    return (("frame", "markers") if args.refit_markers
+            else ("frame",) if args.refit_frame else ())
+
+
 def add_strict_flag(parser: argparse.ArgumentParser) -> None:
     """``--strict``: refuse campaign CSV columns no reader knows (else ignored with a
     warning; :class:`stiffness.errors.UnknownColumnWarning`)."""

@@ -41,21 +41,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="campaign.toml, or the folder holding it")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (campaign units) and nothing else")
-    parser.add_argument("--refit-frame", action="store_true",
-                        help="pose campaigns: fit the measuring frame (6 parameters) to the "
-                        "campaign before judging it, the rest of the model as it is: a "
-                        "campaign of another day or with the tracker moved")
-    parser.add_argument("--refit-markers", action="store_true",
-                        help="pose campaigns: fit the markers' offsets to the campaign too (a "
-                        "marker plate mounted again); implies --refit-frame")
+    flags.add_refit_flags(parser)
     flags.add_strict_flag(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``stiffness validate``; returns the exit code."""
-    refit = (("frame", "markers") if args.refit_markers
-             else ("frame",) if args.refit_frame else ())
-    result = validate(args.model, args.campaign, refit=refit).to_dict()
+    result = validate(args.model, args.campaign, refit=flags.refit_from_args(args)).to_dict()
     print(json.dumps(result, indent=1, allow_nan=False) if args.json
           else format_validation(result))
     return 0
