@@ -153,3 +153,16 @@ def test_refit_without_validation_or_of_another_family_is_refused(days):
         stiffness.diagnose(a, refit=("frame",))
     with pytest.raises(StiffnessError, match="refit must be"):
         stiffness.diagnose(a, validate=b, refit=("geometry",))
+
+
+def test_report_of_a_campaign_passes_the_flags_on(days, capsys, tmp_path):
+    """``stiffness report CAMPAIGN --validate OTHER --refit-frame`` is ``diagnose``'s: its page
+    says the frame was fitted there; without a campaign the flag is refused in one line."""
+    a, b = days
+    assert main(["report", str(a), "--validate", str(b), "--refit-frame", "--quiet",
+                 "--out", str(tmp_path / "r")]) == 0
+    assert "measuring frame fitted to the validation campaign" in capsys.readouterr().out
+    page = (tmp_path / "r" / "diagnosis.html").read_text()
+    assert "with its measuring frame fitted there" in page
+    assert main(["report", "--refit-frame", "--out", str(tmp_path / "s")]) == 2
+    assert "--refit-frame take(s) a campaign" in capsys.readouterr().err

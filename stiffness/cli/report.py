@@ -146,6 +146,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                                       "diagnose --loss")
     group.add_argument("--seed", type=flags.integer,
                        help="seed of the cross-validation folds; default 0")
+    flags.add_refit_flags(parser)  # with --validate, as stiffness diagnose (pose campaigns)
     group.add_argument("--strict", action="store_true",  # applied by cli.main to the run
                        help="refuse campaign CSV columns that are not campaign columns, as "
                             "stiffness diagnose --strict")
@@ -176,6 +177,7 @@ def run_campaign(args: argparse.Namespace) -> int:
     for flag in _CAMPAIGN_FLAGS:
         value = getattr(args, flag)
         words += [] if value is None else [f"--{flag}", str(value)]
+    words += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
     words += ["--quiet"] if args.quiet else []
     parser = argparse.ArgumentParser(prog="stiffness diagnose")
     diagnose.configure_parser(parser)
@@ -196,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
     if args.user_campaign:
         return run_campaign(args)
     given = [f"--{flag}" for flag in _CAMPAIGN_FLAGS if getattr(args, flag) is not None]
+    given += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
     if given:
         raise StiffnessError(f"{', '.join(given)} take(s) a campaign: stiffness report "
                              "CAMPAIGN --out DIR (the SK120 report has no such option)")
