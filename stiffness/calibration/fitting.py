@@ -433,7 +433,19 @@ def reference_stiffness(fit: Fit) -> float:
     n0 = len(fit.model.compliant)
     rigid = set(fit.at_bound) | set(rigid_joints(fit.model, fit.x, fit.kept))
     free = [i for i in fit.kept if i < n0 and i not in rigid]
-    return float(np.exp(np.mean(fit.x[free] if free else fit.x[:n0])))
+    k_ref = typical_stiffness(fit.x[free])
+    return k_ref if k_ref is not None else float(np.exp(np.mean(fit.x[:n0])))
+
+
+def typical_stiffness(ln_k: Sequence[float] | np.ndarray) -> float | None:
+    """``k_ref`` (SI) of the stiffnesses ``exp(ln_k)`` a fit determines: their geometric
+    mean; None when it determines none. The one rule of both campaign kinds' physical
+    scales (a deflection fit's, :func:`reference_stiffness`; a pose fit's,
+    :func:`stiffness.calibration.pose_parameters.reference_stiffness`): each passes only the
+    springs its data determine, so that a joint they do not move, or cannot tell from rigid,
+    sets no scale."""
+    ln_k = np.asarray(ln_k, dtype=float)
+    return float(np.exp(np.mean(ln_k))) if ln_k.size else None
 
 
 def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence[int]

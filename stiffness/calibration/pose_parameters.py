@@ -6,12 +6,15 @@ pose_face.PoseFamily.physical_sizes`) on the campaign's references
 (:class:`~stiffness.elastic.effects.geometry.References`), the ones deflection campaigns judge
 the same effects by:
 
-* ``k_ref``, the stiffness compliances are measured against: one over the median of the
-  fit's own positive joint compliances when ``joint_compliance`` is in its model (as a
-  deflection campaign's baseline stiffnesses; the median, so that neither a nearly rigid
-  joint nor a wildly undetermined one moves it), else the geometric mean of the robot's
-  declared ``k_theta_SI``, else :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`: a
-  joint, link or bearing compliance's scale is ``10 / k_ref``;
+* ``k_ref``, the stiffness compliances are measured against
+  (:func:`reference_stiffness`): the geometric mean of the joint stiffnesses the fit
+  determines when ``joint_compliance`` is in its model, by the deflection campaigns' rule
+  (:func:`~stiffness.calibration.fitting.typical_stiffness`): a spring fitted, off its
+  bound, its compliance's 95 % interval excluding zero (a finite stiffness interval); a
+  joint the data do not move or cannot tell from rigid sets no scale. Else the geometric
+  mean of the robot's declared ``k_theta_SI``, else
+  :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`: a joint, link or bearing
+  compliance's scale is ``10 / k_ref``;
 * the torques each spring carries at the commanded poses under the nominal robot (gravity and
   the applied wrench): the typical joint deflection ``theta_ref`` (RMS torque over ``k_ref``),
   whose ten times is a backlash's scale; the largest, ``tau_max``: a nonlinear spring's
@@ -37,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stiffness.calibration.fitting import NOMINAL_STIFFNESS
+from stiffness.calibration.fitting import NOMINAL_STIFFNESS, typical_stiffness
 from stiffness.calibration.naming import one_sided
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit, rows_of
@@ -86,7 +89,7 @@ class PoseJudge:
         # and on each controller coordinate's spring: what it carries, S^T tau
         carried = weight_torques(model.springs, self.weight @ model.spring_map, self.masses)
         weight.update({k: v for k, v in carried.items() if k not in weight})
-        return References.scaled(tuple(model.springs), _k_ref(fit),
+        return References.scaled(tuple(model.springs), reference_stiffness(fit),
                                  self.torques @ model.spring_map, self.force_rms, 1e-12, weight,
                                  reach(pin_model))
 
@@ -119,15 +122,26 @@ class PoseJudge:
         return out
 
 
-def _k_ref(fit: PoseFit) -> float:
-    """The stiffness compliances are measured against (module docstring), N.m/rad."""
+def reference_stiffness(fit: PoseFit) -> float:
+    """``k_ref`` (N.m/rad) of ``fit``'s physical scales (module docstring): the geometric mean
+    of the joint stiffnesses it determines (:func:`~stiffness.calibration.fitting.
+    typical_stiffness`), those fitted, off their bound and with a compliance whose 95 %
+    interval excludes zero; else the robot's declared springs', else
+    :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`.
+
+    It was one over the median of the fitted positive compliances: on a UR10 with one true
+    spring of 2e4 N.m/rad, elbow and wrist_1 nearly rigid (8.5e-8 and 3.2e-6 rad/(N.m), both
+    intervals reaching zero), the median was wrist_1's, ``k_ref`` 3.1e5, the scale 3.2e-5,
+    and the true 5e-5 rad/(N.m) spring was called a stand-in, "its size not physical"."""
     model = fit.model
     if SPRINGS in model.families:
         cut = model.slices()[SPRINGS]
-        kept = set(fit.identifiability.kept)
-        c = [fit.x[i] for i in range(cut.start, cut.stop) if i in kept and fit.x[i] > 0]
-        if c:
-            return float(1.0 / np.median(c))
+        kept, lo = set(fit.identifiability.kept), fit.interval()[0]
+        seen = [i for i in range(cut.start, cut.stop)
+                if i in kept and i not in fit.at_bound and fit.x[i] > 0 and lo[i] > 0]
+        k_ref = typical_stiffness(-np.log(fit.x[seen]))
+        if k_ref is not None:
+            return k_ref
     declared = default_stiffness(model.robot)
     if declared is not None and np.all(declared > 0):
         return float(np.exp(np.mean(np.log(declared))))
