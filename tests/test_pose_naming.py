@@ -98,13 +98,17 @@ def test_an_alternative_below_the_chosen_one_held_says_it_ranked_worse_in_full()
     """The step ranks its families fitted in full, then holds the chosen one's undetermined
     parameters at nominal, which can raise its BIC past the next family's: then how sure
     read "dBIC -8.67; not chosen: worse BIC" (until 5 December 2026), a worse BIC with a
-    negative change. Seed 1 with a soft wrist_1 joint (700 N.m/rad, no payload: little torque
-    on it): joint_compliance ranks first, its wrist_1 compliance, undetermined (its interval
-    wider than its physical scale), is held at 0, which costs it 60.5 in BIC, and
-    link_compliance, 51.8 behind it fitted in full, is 8.67 below it as named. The reason now
-    says so, its numbers checked against the three fits made again from the baseline (the
-    step's overdispersion 1: the chosen one fits to the noise)."""
-    c = _campaign(1, np.array([3e5, np.inf, 1.2e5, 700.0, 3e4, 3e4]))
+    negative change. Seed 1 with a soft wrist_1 joint (500 N.m/rad, no payload: little torque
+    on it) beside a stiff shoulder lift (5e6) and elbow (1.2e5): joint_compliance ranks first,
+    its wrist_1 compliance, undetermined (its interval, 6.8e-4 rad/(N.m) wide, wider than its
+    physical scale, ten times the determined springs' typical compliance), is held at 0, which
+    costs it 124 in BIC, and link_compliance, 80.1 behind it fitted in full, is 44.1 below it
+    as named. The reason now says so, its numbers checked against the three fits made again
+    from the baseline (the step's overdispersion 1: the chosen one fits to the noise). Until
+    6 December 2026 the campaign had a rigid shoulder lift and a 700 N.m/rad wrist_1: k_ref
+    now leaves out the shoulder lift, which the data cannot tell from rigid, and that wrist_1
+    is determined (1.42e-3 [1.07e-3, 1.76e-3] rad/(N.m) for the true 1.43e-3), not held."""
+    c = _campaign(1, np.array([3e5, 5e6, 1.2e5, 500.0, 3e4, 3e4]))
     d = diagnose_poses(c, not_families=NOT_HIDDEN)
     step, base, named = d.steps[-1], d.steps[0].fit, d.final
     assert step.label == "joint_compliance" and step.dispersion == 1.0
