@@ -262,8 +262,9 @@ def test_the_model_file_carries_beta(ur10, tmp_path, capsys):
 
 
 def _check_physical_scales(d, c) -> None:
-    """Each ``gamma``'s physical scale is ``1 / (k_ref tau_max)``: ``k_ref`` one over the median
-    of the fit's positive kept compliances, ``tau_max`` the largest torque the joint carries at
+    """Each ``gamma``'s physical scale is ``1 / (k_ref tau_max)``: ``k_ref`` the geometric mean
+    of the stiffnesses the fit determines (kept, off their bound, their compliance's 95 %
+    interval above zero), ``tau_max`` the largest torque the joint carries at
     the commanded poses (``-g(q) + J^T w``, computed here with Pinocchio)."""
     fit, robot = d.final, c.robot
     data = robot.model.createData()
@@ -277,9 +278,9 @@ def _check_physical_scales(d, c) -> None:
         torques.append(jac.T @ w - pin.computeGeneralizedGravity(robot.model, data, q_full))
     tau_max = np.abs(np.array(torques)).max(axis=0)
     cut = fit.model.slices()["joint_compliance"]
-    kept = set(fit.identifiability.kept)
-    k_ref = 1.0 / np.median([fit.x[i] for i in range(cut.start, cut.stop)
-                             if i in kept and fit.x[i] > 0])
+    kept, low = set(fit.identifiability.kept), fit.interval()[0]
+    k_ref = np.exp(-np.mean(np.log([fit.x[i] for i in range(cut.start, cut.stop)
+                                    if i in kept and i not in fit.at_bound and low[i] > 0])))
     family = next(f for f in fit.model.family_objects if f.name == FAMILY)
     sizes = family.physical_sizes(fit.model, d.judge.references(fit))
     joints = [p.label.removesuffix(" nonlinear compliance") for p in fit.model.parameters
