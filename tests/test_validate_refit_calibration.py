@@ -1,0 +1,109 @@
+"""``stiffness validate --refit-frame`` / ``--refit-markers``: the verdict is calibrated.
+
+A right UR5 model (one marker, its measuring frame, marker offset and zero offsets fitted on
+12 poses at 50 um) judged on 8 poses of the same robot seen from a tracker moved by a random
+rigid motion (0.1 rad, 50 mm per axis): after the refit the verdict's p-value (the chi-square
+on the components less the refitted parameters, with the model's parameter covariance) is
+uniform, so "above the noise" comes at the test's 5 % level; an elbow zero offset changed by
+4e-4 rad on the second day (0.2 mm at the marker, 4 noise stds) is rejected most of the time.
+
+Measured over 400 seeds (1000-1399): --refit-frame 4.75 %, --refit-markers 5.5 % rejected (KS
+p of the p-values 0.86 and 0.58); before 6 December 2026 (soft_l1's weights left in the
+registration, the refitted columns zeroed in the covariance) 7.5 % and 9.5 %. With the 4e-4
+rad elbow offset 96 % and 96 % of 200 (2e-4 rad: 31 %, 33 %). Without the degrees of freedom
+the refit takes (24 components tested as if nothing were fitted) 0.75 % and 0.25 % of the 400,
+and here the p-values' KS p 2e-15 and 8e-32 (this file fails). These 100 seeds: 3 and 7
+rejected, KS p 0.36 and 0.44; the code before 6 December 2026 gives 5 and 9 (its 2.5-4.5 %
+excess needs some 400 seeds to show).
+docs/absolute-poses.md, Another day.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy import stats
+
+import stiffness
+from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
+from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model_file import write_pose_model
+from stiffness.calibration.selection import GOF_LEVEL
+from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
+from stiffness.robot.robot import load_robot
+
+NOISE = 50e-6  # m
+FAMILIES = ("frame", "markers", "joint_offsets")
+MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05]))]
+SEEDS = 100
+POWER_SEEDS = 15
+ELBOW_OFFSET = 4e-4  # rad, day B's elbow zero offset beyond day A's
+LEVEL = 1.0 - GOF_LEVEL
+
+
+def _days(robot, seed: int, path, elbow: float = 0.0):
+    """The model file of day A (12 poses) and the campaign of day B (8 poses): the same
+    hidden marker offset and zero offsets (the elbow's moved by ``elbow`` rad), the tracker
+    moved by a random rigid motion."""
+    rng = np.random.default_rng(1000 + seed)
+    rotation, translation = pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3)
+    offsets = np.array([m.offset for m in MARKERS]) + rng.normal(0, 2e-3, (1, 3))
+    zeros = rng.normal(0, 1e-3, 6)
+    day_a = simulate_pose_campaign(robot, MARKERS, HiddenPoseErrors(
+        rotation, translation, offsets, zeros, np.zeros((6, 6))), 12, NOISE, seed=2 * seed)
+    motion, shift = pin.exp3(rng.normal(0, 0.1, 3)), rng.normal(0, 0.05, 3)
+    zeros_b = zeros + elbow * (np.arange(6) == 2)
+    day_b = simulate_pose_campaign(robot, MARKERS, HiddenPoseErrors(
+        motion @ rotation, motion @ translation + shift, offsets, zeros_b, np.zeros((6, 6))),
+        8, NOISE, seed=2 * seed + 1)
+    model = PoseModel(robot, day_a.markers, FAMILIES, starting_frame(day_a), day_a.loads)
+    fit = fit_pose_model(model, day_a, rows_of(model, day_a), list(FAMILIES))
+    return write_pose_model(fit, day_a, path / f"model-{seed}.json"), day_b
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("ur5", frame="tool0")
+
+
+@pytest.fixture(scope="module")
+def honest(robot, tmp_path_factory):
+    """Per refit (frame; frame and markers): the verdicts and p-values over SEEDS seeds."""
+    root = tmp_path_factory.mktemp("honest")
+    out: dict[tuple[str, ...], list[dict]] = {("frame",): [], ("frame", "markers"): []}
+    for seed in range(SEEDS):
+        model, day_b = _days(robot, seed, root)
+        for refit, results in out.items():
+            results.append(stiffness.validate(model, day_b, refit=refit).to_dict())
+    return out
+
+
+@pytest.mark.parametrize("refit", [("frame",), ("frame", "markers")])
+def test_a_right_model_is_rejected_at_the_level(honest, refit):
+    """The reported verdicts: "above the noise" within the two-sided 99 % binomial band of
+    the 5 % level (1..11 of 100), the reported p-values uniform (Kolmogorov-Smirnov p >
+    0.01), the degrees of freedom the 24 components less the 6 or 9 refitted, the parameter
+    covariance in the test."""
+    results = honest[refit]
+    assert all(r["verdict_test"] == "noise and the model's parameter uncertainty"
+               for r in results)
+    assert {r["dof"] for r in results} == {24 - (9 if "markers" in refit else 6)}
+    rejected = sum(r["verdict"] == "above the noise" for r in results)
+    low, high = stats.binom.interval(0.99, SEEDS, LEVEL)
+    assert low <= rejected <= high, rejected
+    p = np.array([r["gof_p_with_parameters"] for r in results])
+    assert stats.kstest(p, "uniform").pvalue > 0.01
+
+
+def test_a_changed_elbow_offset_is_rejected(robot, tmp_path):
+    """Day B's elbow zero offset 4e-4 rad off day A's (4 noise stds at the marker): the
+    frame refitted does not absorb it; rejected in at least 80 % of POWER_SEEDS seeds (96 %
+    of 200 measured) with the frame and with the markers refitted."""
+    counts = {("frame",): 0, ("frame", "markers"): 0}
+    for seed in range(POWER_SEEDS):
+        model, day_b = _days(robot, SEEDS + seed, tmp_path, ELBOW_OFFSET)
+        for refit in counts:
+            verdict = stiffness.validate(model, day_b, refit=refit).verdict
+            counts[refit] += verdict == "above the noise"
+    assert all(c >= 0.8 * POWER_SEEDS for c in counts.values()), counts
