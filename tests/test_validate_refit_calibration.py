@@ -30,6 +30,8 @@ from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_fra
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.calibration.selection import GOF_LEVEL
+from stiffness.cli.main import main
+from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 
@@ -107,3 +109,20 @@ def test_a_changed_elbow_offset_is_rejected(robot, tmp_path):
             verdict = stiffness.validate(model, day_b, refit=refit).verdict
             counts[refit] += verdict == "above the noise"
     assert all(c >= 0.8 * POWER_SEEDS for c in counts.values()), counts
+
+
+def test_refitting_a_family_the_model_lacks_is_refused(robot, tmp_path, capsys):
+    """A model fitted without marker offsets, validated with ``--refit-markers``: one line
+    naming the family (a KeyError before), exit 2 on the command line; ``--refit-frame``
+    still judges it."""
+    _, day_b = _days(robot, 0, tmp_path)
+    model = PoseModel(robot, day_b.markers, ("frame", "joint_offsets"),
+                      starting_frame(day_b), day_b.loads)
+    fit = fit_pose_model(model, day_b, rows_of(model, day_b), ["frame", "joint_offsets"])
+    path = write_pose_model(fit, day_b, tmp_path / "no-markers.json")
+    with pytest.raises(StiffnessError, match="no markers family .* without refitting markers"):
+        stiffness.validate(path, day_b, refit=("frame", "markers"))
+    stiffness.write_pose_campaign(day_b, tmp_path / "b")
+    assert main(["validate", str(path), str(tmp_path / "b"), "--refit-markers"]) == 2
+    assert "no markers family" in capsys.readouterr().err
+    assert stiffness.validate(path, day_b, refit=("frame",)).to_dict()["dof"] == 24 - 6

@@ -108,9 +108,15 @@ def refit_frame(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
     Raises
     ------
     StiffnessError
-        The campaign's markers are not the model's (:func:`validation_jacobian`).
+        The campaign's markers are not the model's (:func:`validation_jacobian`); a family
+        of ``families`` not in the model.
     """
     slices = model.slices()
+    if missing := [f for f in families if f not in slices]:
+        raise StiffnessError(
+            f"the model has no {' or '.join(missing)} family to fit to the campaign (its "
+            f"families: {', '.join(model.families)}); validate it without refitting "
+            f"{' or '.join(missing)} (--refit-markers), or a model fitted with it")
     frame = np.concatenate([np.arange(slices[f].start, slices[f].stop) for f in families])
     given = np.array(x, dtype=float)
     x, robust_steps, _, scale = _gauss_newton(model, given.copy(), campaign, frame, None)
