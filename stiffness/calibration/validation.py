@@ -471,13 +471,12 @@ def validate(model: ModelFile | str | os.PathLike,
     if calibration.covariance is not None and jac is not None:
         seen = np.isfinite(residual)
         stacked, stacked_jac = residual[seen], jac[seen]
-        if refit:  # fitted here: what the refit absorbs of the others' errors is not left
-            stacked_jac, rotation_jacobian = refitted_jacobians(stacked_jac, rotation_jacobian,
-                                                                frame)
         if rotations is not None and rotation_residual is not None \
                 and rotation_jacobian is not None:
             stacked, stacked_jac = rotations.stacked(stacked, stacked_jac, rotation_residual,
                                                      rotation_jacobian, poses.units.length_to_si)
+        if refit:  # fitted here: what the refit absorbs of the others' errors is not left
+            stacked_jac = refitted_jacobian(stacked_jac, frame)
         term = ParameterTerm.of(calibration.covariance, stacked, stacked_jac,
                                 [p.label for p in calibration.model.parameters],
                                 poses.units.length_to_si)
@@ -488,21 +487,17 @@ def validate(model: ModelFile | str | os.PathLike,
                       registered["parameters"] if refit else 0)
 
 
-def refitted_jacobians(jacobian: np.ndarray, rotation_jacobian: np.ndarray | None,
-                       refitted: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
-    """The derivatives (N, p) of the seen position components and (N_r, p) of the rotation
-    components (or ``None``) with respect to the model's parameters once the columns
-    ``refitted`` are fitted to the positions by least squares: a change ``dx`` of the others
-    moves the positions by ``J dx``, of which the refit takes ``J_f G dx`` (``G = J_f^+ J``,
-    ``J_f`` the refitted columns of the positions' ``J``), leaving ``J - J_f G`` (the
-    projection of ``J`` off the refitted columns; those columns become 0). Zeroing the
-    refitted columns alone (until 6 December 2026) kept the part the refit absorbs in the
-    residual's covariance."""
+def refitted_jacobian(jacobian: np.ndarray, refitted: list[int]) -> np.ndarray:
+    """The derivatives (N, p) of the tested components (positions, and orientations weighted
+    into them, as the registration fits them: :func:`~stiffness.calibration.pose_register.
+    refit_frame`) with respect to the model's parameters once the columns ``refitted`` are
+    fitted to them by least squares: a change ``dx`` of the others moves them by ``J dx``, of
+    which the refit takes ``J_f J_f^+ J dx`` (``J_f`` the refitted columns), leaving the
+    projection ``J - J_f J_f^+ J`` (the refitted columns 0). Zeroing the refitted columns
+    alone (until 6 December 2026) kept the part the refit absorbs in the residual's
+    covariance."""
     frame = jacobian[:, refitted]
-    absorbed = np.linalg.lstsq(frame, jacobian, rcond=None)[0]
-    return (jacobian - frame @ absorbed,
-            None if rotation_jacobian is None
-            else rotation_jacobian - rotation_jacobian[:, refitted] @ absorbed)
+    return jacobian - frame @ np.linalg.lstsq(frame, jacobian, rcond=None)[0]
 
 
 def flagged_rows(residual: np.ndarray, noise: float | None, labels: list[str] | tuple[str, ...],
