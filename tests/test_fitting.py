@@ -62,6 +62,44 @@ def test_an_unseen_stiffness_is_held_and_the_others_fit_as_without_it():
     assert fit.cost < 1.5 * measured.size  # it fits to noise
 
 
+def test_an_objective_evaluates_each_recent_point_once(monkeypatch):
+    """An Objective keeps the model's prediction and Jacobian at its last few points and the
+    forward-difference Jacobian at its last one: going back to a point (a fit's start, judged
+    for identifiability and then solved from) costs no evaluation, and gives bit for bit what
+    a fresh Objective computes there."""
+    base, measured = _campaign_model(tuple(load_robot("ur5").compliant_joints))
+    model = base.extended(make_effect("frame_misalignment", None, base.geometry))
+    numeric = int(np.sum(~model.analytic_columns))
+    assert numeric > 0  # the forward differences are taken in some columns
+    x0 = np.concatenate([np.log(K_TRUE), [2.0], np.full(model.n_params - 7, 1e-3)])
+    points = [x0 + 0.01 * i for i in range(3)]
+    fresh = fitting.Objective(model, measured, NOISE)
+    expected = [(fresh.fun(x), fitting.Objective(model, measured, NOISE).jac(x))
+                for x in points]
+    calls = {"jacobian": 0, "predict": 0}
+
+    def counted(name):
+        original = getattr(Hypothesis, name)
+
+        def call(self, x, *args, **kwargs):
+            calls["jacobian" if name == "predict_with_jacobian" else "predict"] += 1
+            return original(self, x, *args, **kwargs)
+        return call
+
+    monkeypatch.setattr(Hypothesis, "predict_with_jacobian", counted("predict_with_jacobian"))
+    monkeypatch.setattr(Hypothesis, "predict", counted("predict"))
+    objective = fitting.Objective(model, measured, NOISE)
+    start = objective.columns(points[0], False)
+    got = [(objective.fun(x), objective.jac(x)) for x in points]
+    got[0] = (objective.fun(points[0]), objective.jac(points[0]))  # back at the start
+    # the start's forward differences once for columns and jac, again when back at it
+    assert calls == {"jacobian": 3, "predict": 4 * numeric}
+    for (r, j), (r_ref, j_ref) in zip(got, expected, strict=True):
+        np.testing.assert_array_equal(r, r_ref)
+        np.testing.assert_array_equal(j, j_ref)
+    np.testing.assert_array_equal(start[:, 6:], expected[0][1][:, 6:])
+
+
 def _jobs() -> list[FitJob]:
     model, measured = _campaign_model(tuple(load_robot("ur5").compliant_joints))
     rng = np.random.default_rng(3)

@@ -76,6 +76,10 @@ PRIOR_WEIGHT = 1e-6
 PENALTY = 1e6
 #: |x| beyond this (k ~ 1e100 for ln k) is a failed evaluation.
 _MAX_X = 230.0
+#: Points at which an :class:`Objective` keeps the model's prediction and Jacobian, the last
+#: computed first out: the solver's last points, a fit's start and representative point
+#: (:func:`stiffness.calibration.solver.fit` judges identifiability there), its optimum.
+_RECENT = 4
 #: Relative step of the central differences of the parameters without analytic derivatives.
 _FD_STEP = 1e-6
 #: Relative step of the solver's forward differences there (``sqrt(eps)``, as scipy's).
@@ -246,7 +250,18 @@ class Objective:
         self._key: bytes | None = None
         self._pred: np.ndarray | None = None
         self._jac: np.ndarray | None = None
-        self._central: tuple[bytes, np.ndarray] | None = None
+        #: Whether a prediction depends only on ``x``: not the exact baseline's, whose sag
+        #: starts from the last one computed (:class:`~stiffness.calibration.exact_baseline.
+        #: ExactObservation`), so that only its last point is reused (a point computed again
+        #: there may differ in the last bits, and so do the later ones).
+        self._pure = model.baseline != "exact"
+        #: The predictions and Jacobians kept (``x``'s bytes: either ``None`` where the model
+        #: fails), :data:`_RECENT` of them (the last one only where not :attr:`_pure`).
+        self._recent: dict[bytes, tuple[np.ndarray | None, np.ndarray | None]] = {}
+        #: The last data Jacobian of each kind (central: True; forward: False, where
+        #: :attr:`_pure`) and its ``x``: a fit's identifiability judges the columns at its
+        #: start, where the solver's first Jacobian is taken again.
+        self._jacobians: dict[bool, tuple[bytes, np.ndarray]] = {}
 
     def _predict(self, x: np.ndarray, jacobian: bool
                  ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -267,9 +282,16 @@ class Objective:
 
     def _evaluate(self, x: np.ndarray) -> None:
         key = x.tobytes()
-        if key != self._key:
-            self._pred, self._jac = self._predict(x, jacobian=True)
-            self._key = key
+        if key == self._key:
+            return
+        kept = self._recent.pop(key, None) if self._pure else None
+        if kept is None:
+            kept = self._predict(x, jacobian=True)
+        self._recent[key] = kept
+        while len(self._recent) > (_RECENT if self._pure else 1):
+            del self._recent[next(iter(self._recent))]
+        self._pred, self._jac = kept
+        self._key = key
 
     def _scaled(self, pred: np.ndarray | None) -> np.ndarray:
         if pred is None:
@@ -285,8 +307,9 @@ class Objective:
         """(N, p) derivative of the scaled data residuals w.r.t. ``x``: analytic columns and
         finite differences (central, else forward) in the others."""
         x = np.asarray(x, dtype=float)
-        if central and self._central is not None and self._central[0] == x.tobytes():
-            return self._central[1].copy()
+        last = self._jacobians.get(central)
+        if last is not None and last[0] == x.tobytes() and (central or self._pure):
+            return last[1].copy()
         self._evaluate(x)
         if self._pred is None or self._jac is None:  # the model failed: no prediction
             return np.zeros((self.n_res, self.p))
@@ -302,8 +325,7 @@ class Objective:
                 out[:, i] = (plus - minus) / (2.0 * h)
             else:
                 out[:, i] = (plus - r0) / h
-        if central:
-            self._central = (x.tobytes(), out.copy())
+        self._jacobians[central] = (x.tobytes(), out.copy())
         return out
 
     def fun(self, x: np.ndarray) -> np.ndarray:
