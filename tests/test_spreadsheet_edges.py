@@ -370,3 +370,39 @@ def test_decimal_points_beside_decimal_commas_are_refused(tmp_path):
                                               r"decimal point, but line 2 has a number with a "
                                               "decimal comma"):
         import_campaign([path], RobotSettings("ur5"), settings)
+
+
+@EDGES
+@given(gaps=st.lists(st.sampled_from([" ", "  ", "\t", " \t "]), min_size=24, max_size=24),
+       lead=st.sampled_from(["", " ", "  "]),
+       values=st.lists(st.floats(-1, 1, allow_nan=False).map(lambda v: f"{v:.18e}"),
+                       min_size=3, max_size=3))
+def test_a_headerless_space_separated_export_imports_the_same_numbers(rig, gaps, lead, values):
+    """``numpy.savetxt`` (a laser tracker's logger, a paper's data set) writes numbers
+    separated by spaces and no header. The import took the whole first line for one column's
+    name (the first measurement lost) and refused: 'no coordinate column'. Now the columns are
+    split at any run of spaces or tabs and, the first row being all numbers, named col1 ..
+    colN by position (said in a note): the same campaign as the comma-separated file with a
+    header, whatever the gaps and the numbers (the first row's deflections drawn)."""
+    from stiffness.errors import DataFileNote
+
+    folder = rig[0]
+    rows = [line.split(",") for line in BASE_ROWS]
+    rows[1][9:12] = values
+    plain = folder / "plain.csv"
+    plain.write_text("\n".join(",".join(r) for r in rows) + "\n")
+    spaced = folder / "spaced.txt"
+    spaced.write_text("\n".join(lead + "".join(c + g for c, g in zip(r, gaps[12 * i:]))
+                                for i, r in enumerate(rows[1:])) + "\n")
+    names = rows[0]
+    by_position = ImportSettings(column_map={n: f"col{i + 1}" for i, n in enumerate(names)},
+                                 units=UNITS)
+    try:
+        want, _ = import_campaign([plain], RobotSettings("ur5"), ImportSettings(units=UNITS))
+        with pytest.warns(DataFileNote, match=r"no header \(line 1 is 12 numbers\): its columns "
+                                              r"are named by position, col1 \.\. col12"):
+            got, _ = import_campaign([spaced], RobotSettings("ur5"), by_position)
+    finally:
+        plain.unlink()
+        spaced.unlink()
+    _same(got, want, ("q", "force", "deflection"))

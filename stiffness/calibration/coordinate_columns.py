@@ -55,7 +55,7 @@ LISTED = 8
 DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(?:[eE][+-]?\d+)?")
 #: The separators a rig's export may use instead of commas (a European spreadsheet's ``;``,
 #: a tracker's tab-separated text), by how messages name them.
-SEPARATORS = {";": "';'", "\t": "tabs"}
+SEPARATORS = {";": "';'", "\t": "tabs", " ": "spaces"}
 
 
 def listed(names: list[str] | tuple[str, ...], limit: int = LISTED) -> str:
@@ -196,7 +196,7 @@ def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: P
     rows = []
     for number, line in comments:
         try:
-            cells = csv_cells(line, path, number, separator)
+            cells = split_cells(line, path, number, separator)
         except FileFormatError:  # not CSV: no row
             continue
         while len(cells) > width and not cells[-1].strip():
@@ -211,14 +211,26 @@ def warn_commented_rows(comments: Iterable[tuple[int, str]], width: int, path: P
                       DataFileWarning, stacklevel=3)
 
 
+def split_cells(line: str, path: str | Path, number: int, separator: str = ",") -> list[str]:
+    """The cells of one line of a rig file separated by ``separator``: a CSV reading
+    (:func:`stiffness.files.csv_cells`), or for ``" "`` the runs of spaces and tabs between
+    them (``numpy.savetxt``'s, MATLAB's ``save -ascii``, a tracker's text export)."""
+    if separator == " ":
+        return line.split()
+    return csv_cells(line, path, number, separator)
+
+
 def rig_rows(text: str, path: Path
              ) -> tuple[list[tuple[int, list[str]]], list[tuple[int, str]], str]:
     """The rows of a rig file's ``text`` (the header first) as (1-based line, stripped cells),
     blank, empty (``,,,``) and ``#`` lines skipped; the comment (and blank) lines after the
     header; and the column separator, read from the header: a header that is one cell to a
-    comma-separated reading but holds ``;`` or tabs (a European spreadsheet's export, a
-    tracker's text file) separates the columns with those (:data:`SEPARATORS`). Numbers with
-    decimal commas in such a file are read by :func:`decimal_commas`."""
+    comma-separated reading but holds ``;``, tabs or spaces (a European spreadsheet's export,
+    a tracker's text file, ``numpy.savetxt``'s) separates the columns with those
+    (:data:`SEPARATORS`; spaces: any run of them). Numbers with decimal commas in such a file
+    are read by :func:`decimal_commas`. A file without a header (its first row all numbers:
+    ``numpy.savetxt``'s, a logger's) gets one naming its columns by position, ``col1`` ..
+    ``colN`` (:func:`numbered_header`), said once."""
     separator = ","
     found: list[tuple[int, list[str]]] = []
     comments: list[tuple[int, str]] = []
@@ -227,11 +239,38 @@ def rig_rows(text: str, path: Path
             comments.extend([(number, line)] if found else [])  # blank ones are no rows
             continue
         if not found and len(csv_cells(line, path, number)) == 1:
-            separator = next((c for c in SEPARATORS if c in line), ",")
-        cells = [c.strip() for c in csv_cells(line, path, number, separator)]
+            separator = _separator(line.strip())
+        cells = [c.strip() for c in split_cells(line, path, number, separator)]
         if not is_blank_row(cells):
             found.append((number, cells))
-    return found, comments, separator
+    return numbered_header(found, path), comments, separator
+
+
+def _separator(line: str) -> str:
+    """The separator of a rig file whose first line ``line`` is one cell to a comma-separated
+    reading: the first of :data:`SEPARATORS` in it, but for a line of numbers (no header)
+    separated by runs of spaces or tabs (not tabs alone, which keep their empty cells) any
+    such run (``" "``)."""
+    separator = next((c for c in SEPARATORS if c in line), ",")
+    if separator == "\t" and len(line.split("\t")) != len(line.split()) and all(
+            _is_number(c) for c in line.split()):
+        return " "
+    return separator
+
+
+def numbered_header(found: list[tuple[int, list[str]]], path: Path
+                    ) -> list[tuple[int, list[str]]]:
+    """The rows ``found`` (:func:`rig_rows`), with a header ``col1`` .. ``colN`` put before
+    them when their first row is all numbers (a file written without a header, whose first
+    measurement would otherwise be read as column names and lost), said once
+    (:class:`DataFileNote`); else unchanged."""
+    if not found or not all(_is_number(c) or DECIMAL_COMMA.fullmatch(c) for c in found[0][1]):
+        return found
+    number, cells = found[0]
+    warnings.warn(f"{path}: no header (line {number} is {len(cells)} numbers): its columns are "
+                  f"named by position, col1 .. col{len(cells)}; map them (--map q1=col1,...)",
+                  DataFileNote, stacklevel=4)
+    return [(number, [f"col{i + 1}" for i in range(len(cells))]), *found]
 
 
 def decimal_commas(found: list[tuple[int, list[str]]], separator: str, path: Path
