@@ -392,8 +392,9 @@ def test_a_headerless_space_separated_export_imports_the_same_numbers(rig, gaps,
     plain = folder / "plain.csv"
     plain.write_text("\n".join(",".join(r) for r in rows) + "\n")
     spaced = folder / "spaced.txt"
-    spaced.write_text("\n".join(lead + "".join(c + g for c, g in zip(r, gaps[12 * i:]))
-                                for i, r in enumerate(rows[1:])) + "\n")
+    lines = [lead + "".join(c + g for c, g in zip(r, gaps[12 * i:12 * i + 12], strict=True))
+             for i, r in enumerate(rows[1:])]
+    spaced.write_text("\n".join(lines) + "\n")
     names = rows[0]
     by_position = ImportSettings(column_map={n: f"col{i + 1}" for i, n in enumerate(names)},
                                  units=UNITS)
