@@ -110,6 +110,13 @@ def _missing(d: dict) -> str:
            f"(dBIC {best['delta_bic']:+.3g}" if best.get("rms") is not None else
            f"{name} (dBIC {best['delta_bic']:+.3g} on a first-order screen, not fitted")
     forced = f"'{name}'" if "(" in name else name
+    if str(best.get("not_judged") or "").startswith("unphysical"):  # more data: the same values
+        return (f"{head}, or the model's joints are not the robot's: the best rejected "
+                f"candidate, {did}{_why_rejected(best, unit)}), fits values no robot is off by, "
+                "and more configurations would not make them physical; check each joint's "
+                "zero, sign and axis against the controller's, and how the controller counts "
+                "its angles (a forearm angle read from the horizontal, as a Fanuc's J3 with its "
+                "J2/J3 interaction, is a serial model's joint 3 plus joint 2)")
     return (f"{head}, or a library effect this campaign is too small to confirm: the best "
             f"rejected candidate, {did}{_why_rejected(best, unit)}); more configurations or "
             f"loads can confirm it, and --families {forced} forces it in to show its "
