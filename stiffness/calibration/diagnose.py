@@ -308,9 +308,10 @@ def _diagnose_deflections(campaign: Campaign, max_steps: int, seed: int, propose
     build = baseline_builder(geo, compliant, masses)
     start = build(campaign)
     rows = start.rows
+    pooled = pooled_replicates(known, campaign, loss != "linear")
     base, measured, scale, rot_sigma, rot_source = _baseline_fit(campaign, start, n, sigma,
-                                                                 loss, masses)
-    known = pooled_replicates(known, campaign, loss != "linear")
+                                                                 loss, masses, pooled)
+    known = pooled
     say(f"baseline {base.model.describe()}: RMS {base.rms():.4g} m")
     folds = config_folds(campaign.config, seed, campaign.wrench)
     cv_base = cross_validate([base], measured, folds, workers)[0]
@@ -456,14 +457,18 @@ def _final_note(final: Fit, n: int, known: Noise | None, note: str) -> str:
 
 
 def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float | None,
-                  loss: str = "linear", masses: str = "known"
+                  loss: str = "linear", masses: str = "known", known: Noise | None = None
                   ) -> tuple[Fit, np.ndarray, float, float | None, str | None]:
     """The campaign's baseline ``model0`` fitted (rotations weighted by their noise, estimated
     from the baseline's residuals when not known), with the references of its stiffness and
     of the robot's link ``masses`` (``unknown``: no weight to judge a compensator against);
     under a robust ``loss`` scaled by ``sigma`` (m), else by identify's robust estimate
     (:func:`~stiffness.calibration.deflection_noise.robust_scale`: the rounds of
-    :func:`~stiffness.calibration.outliers.robust_rounds` with identify's fits).
+    :func:`~stiffness.calibration.outliers.robust_rounds` with identify's fits). ``k_ref``
+    (:func:`~stiffness.calibration.fitting.reference_stiffness`) counts the springs whose
+    compliance's 95 % interval excludes zero at the ``known`` noise (pooled as the report's,
+    :func:`~stiffness.calibration.selection.pooled_replicates`; ``None``: declared ``sigma``,
+    else the baseline's residual scatter).
 
     Returns
     -------
@@ -489,7 +494,10 @@ def _baseline_fit(campaign: Campaign, model0: Hypothesis, n: int, sigma: float |
     measured = observations(deflection, campaign.rotation, weight)
     model0 = model0.replaced(rotation_weight=weight)
     base = weighted if weighted is not None else fit_baseline(model0, measured, scale, fit_loss)
-    k_ref = fitting.reference_stiffness(base)
+    noise = known if known is not None or sigma is None else Noise(sigma)
+    quantiles = interval_quantiles(noise, base, n, campaign, measured)  # the report's
+    k_ref = fitting.reference_stiffness(base, quantiles.noise.sigma, quantiles.two_sided(),
+                                        measured)
     base.model = base.model.replaced(refs=References.of(model0.geometry, model0.rows, k_ref,
                                                     deflection, masses))
     if sigma is None and loss == "linear":

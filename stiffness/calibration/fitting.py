@@ -443,10 +443,15 @@ def rigid_joints(model: Hypothesis, x: np.ndarray, kept: Sequence[int]) -> list[
     return [i for i in range(n0) if i in kept and u[i] <= RIGID_COMPLIANCE]
 
 
-def reference_stiffness(fit: Fit) -> float:
-    """``k_ref`` (SI) of a baseline ``fit`` of ln k: the geometric mean of the stiffnesses it
-    determines, those it moved (:attr:`Fit.kept`) and left off their rigid bound
-    (:attr:`Fit.at_bound`, :func:`rigid_joints`); of them all when it determines none.
+def reference_stiffness(fit: Fit, sigma: float, quantile: float | np.ndarray,
+                        measured: np.ndarray | None = None) -> float:
+    """``k_ref`` (SI) of a baseline ``fit`` of ln k: :func:`typical_stiffness` over the
+    springs it fitted (:attr:`Fit.kept`) off their rigid bound (:attr:`Fit.at_bound`,
+    :func:`rigid_joints`), their compliances' 95 % intervals ``c -+ quantile se_c`` (the
+    report's, :func:`~stiffness.calibration.deflection_parameters.stiffness_parameters`:
+    ``se_c = c se`` with ``se`` that of ``ln k`` from :func:`compliance_covariance` at the
+    noise std ``sigma``, m; ``quantile`` one for all or one per column of ``fit.x``; robust
+    fits need their observations ``measured``); else the springs' nominal stiffnesses.
 
     The physical scales (ten times ``1 / k_ref`` in compliance, the typical joint deflection)
     are judged against it: a wrist the data do not see, at its 1e14 bound, raised it from
@@ -454,20 +459,41 @@ def reference_stiffness(fit: Fit) -> float:
     size not physical"."""
     n0 = len(fit.model.compliant)
     rigid = set(fit.at_bound) | set(rigid_joints(fit.model, fit.x, fit.kept))
-    free = [i for i in fit.kept if i < n0 and i not in rigid]
-    k_ref = typical_stiffness(fit.x[free])
-    return k_ref if k_ref is not None else float(np.exp(np.mean(fit.x[:n0])))
+    fitted = [i for i in fit.kept if i < n0 and i not in rigid]
+    se = np.full(n0, np.inf)
+    if fitted:
+        with np.errstate(invalid="ignore"):
+            se = np.sqrt(np.diag(compliance_covariance(fit, sigma, measured))[:n0])
+    c = np.exp(-fit.x[:n0])
+    q = np.broadcast_to(np.asarray(quantile, dtype=float), fit.x.shape)[:n0]
+    with np.errstate(invalid="ignore"):
+        low = c * (1.0 - q * se)
+    return typical_stiffness(c, low, fitted,
+                             nominal_stiffness(fit.model.geometry.robot, fit.model.compliant))
 
 
-def typical_stiffness(ln_k: Sequence[float] | np.ndarray) -> float | None:
-    """``k_ref`` (SI) of the stiffnesses ``exp(ln_k)`` a fit determines: their geometric
-    mean; None when it determines none. The one rule of both campaign kinds' physical
-    scales (a deflection fit's, :func:`reference_stiffness`; a pose fit's,
-    :func:`stiffness.calibration.pose_parameters.reference_stiffness`): each passes only the
-    springs its data determine, so that a joint they do not move, or cannot tell from rigid,
-    sets no scale."""
-    ln_k = np.asarray(ln_k, dtype=float)
-    return float(np.exp(np.mean(ln_k))) if ln_k.size else None
+def typical_stiffness(compliance: Sequence[float] | np.ndarray,
+                      low: Sequence[float] | np.ndarray, fitted: Sequence[int],
+                      nominal: Sequence[float] | np.ndarray) -> float:
+    """``k_ref`` (SI) of a fit's springs, the one rule of both campaign kinds' physical scales
+    (a deflection fit's, :func:`reference_stiffness`; a pose fit's,
+    :func:`stiffness.calibration.pose_parameters.reference_stiffness`): the geometric mean
+    of the stiffnesses ``1 / compliance`` the fit determines, those among ``fitted`` (the
+    springs it fitted and left off their bound) whose compliance's 95 % interval excludes
+    zero (its low end ``low`` above zero: a finite stiffness interval); else the geometric
+    mean of the ``nominal`` stiffnesses (declared or
+    :data:`NOMINAL_STIFFNESS`). Compliances in rad/(N.m) or m/N, stiffnesses their inverse.
+
+    A joint the data do not move, or cannot tell from rigid, sets no scale: a near-rigid
+    spring off its bound whose interval reaches zero counted on the deflection side until
+    the pose side's rule became both's (a UR10 pose campaign's median rule, one true spring
+    of 2e4 N.m/rad beside an elbow and wrist_1 fitted nearly rigid, gave ``k_ref`` 3.1e5 and
+    called that spring a stand-in)."""
+    c, lo = np.asarray(compliance, dtype=float), np.asarray(low, dtype=float)
+    seen = [i for i in fitted if c[i] > 0 and lo[i] > 0]
+    if seen:
+        return float(np.exp(-np.mean(np.log(c[seen]))))
+    return float(np.exp(np.mean(np.log(np.asarray(nominal, dtype=float)))))
 
 
 def _rigid(model: Hypothesis, x: np.ndarray, at_bound: list[int], kept: Sequence[int]

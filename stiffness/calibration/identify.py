@@ -368,7 +368,8 @@ def _identification(campaign: Campaign, rob: Robot, model: Hypothesis, formulati
     notes += _bias_note(bias, rob.compliant_joints)
     rigid = _rigid(best_fit, sigma, measured, intervals.one_sided(), unc)
     outliers, flag_sigma = _outliers(best_fit, measured, campaign, fitted, notes)
-    judged = stiffness_parameters(_judging(best_fit, campaign), cov.matrix,
+    judged = stiffness_parameters(_judging(best_fit, campaign, sigma, intervals.two_sided(),
+                                           measured), cov.matrix,
                                   intervals.two_sided(), intervals.one_sided())
     conditional = _conditional(compliance_spread(best_fit, sigma, measured).matrix
                                if rigid.any() else cov.matrix, rigid, rob.compliant_joints)
@@ -461,14 +462,17 @@ def _provenance(campaign: Campaign, rob: Robot) -> dict[str, Any]:
     }
 
 
-def _judging(fit: Fit, campaign: Campaign) -> Fit:
+def _judging(fit: Fit, campaign: Campaign, sigma: float, quantile: np.ndarray,
+             measured: np.ndarray) -> Fit:
     """``fit`` with diagnose's physical scales: its model's references at ``k_ref`` the
-    geometric mean of the stiffnesses it determines (:func:`reference_stiffness`), as
-    diagnose sets them from its baseline
+    geometric mean of the stiffnesses it determines (:func:`reference_stiffness`: their
+    compliance's interval at the noise std ``sigma``, m, and two-sided ``quantile`` excluding
+    zero), as diagnose sets them from its baseline
     (:func:`stiffness.calibration.diagnose`), so a stiffness's physical scale, ten times
     ``1 / k_ref`` in compliance, is the one diagnose judges it against."""
     model = fit.model
-    refs = References.of(model.geometry, model.rows, reference_stiffness(fit),
+    refs = References.of(model.geometry, model.rows,
+                         reference_stiffness(fit, sigma, quantile, measured),
                          campaign.deflection)
     return replace(fit, model=model.replaced(refs=refs))
 

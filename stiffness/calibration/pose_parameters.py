@@ -8,8 +8,8 @@ the same effects by:
 
 * ``k_ref``, the stiffness compliances are measured against
   (:func:`reference_stiffness`): the geometric mean of the joint stiffnesses the fit
-  determines when ``joint_compliance`` is in its model, by the deflection campaigns' rule
-  (:func:`~stiffness.calibration.fitting.typical_stiffness`): a spring fitted, off its
+  determines when ``joint_compliance`` is in its model, by the one rule of both campaign
+  kinds (:func:`~stiffness.calibration.fitting.typical_stiffness`): a spring fitted, off its
   bound, its compliance's 95 % interval excluding zero (a finite stiffness interval); a
   joint the data do not move or cannot tell from rigid sets no scale. Else the geometric
   mean of the robot's declared ``k_theta_SI``, else
@@ -125,24 +125,22 @@ class PoseJudge:
 def reference_stiffness(fit: PoseFit) -> float:
     """``k_ref`` (N.m/rad) of ``fit``'s physical scales (module docstring): the geometric mean
     of the joint stiffnesses it determines (:func:`~stiffness.calibration.fitting.
-    typical_stiffness`), those fitted, off their bound and with a compliance whose 95 %
-    interval excludes zero; else the robot's declared springs', else
-    :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`.
+    typical_stiffness`, the one rule of both campaign kinds), those fitted, off their bound
+    and with a compliance whose 95 % interval excludes zero; else the robot's declared
+    springs', else :data:`~stiffness.calibration.fitting.NOMINAL_STIFFNESS`.
 
     It was one over the median of the fitted positive compliances: on a UR10 with one true
     spring of 2e4 N.m/rad, elbow and wrist_1 nearly rigid (8.5e-8 and 3.2e-6 rad/(N.m), both
     intervals reaching zero), the median was wrist_1's, ``k_ref`` 3.1e5, the scale 3.2e-5,
     and the true 5e-5 rad/(N.m) spring was called a stand-in, "its size not physical"."""
     model = fit.model
-    if SPRINGS in model.families:
-        cut = model.slices()[SPRINGS]
-        kept, lo = set(fit.identifiability.kept), fit.interval()[0]
-        seen = [i for i in range(cut.start, cut.stop)
-                if i in kept and i not in fit.at_bound and fit.x[i] > 0 and lo[i] > 0]
-        k_ref = typical_stiffness(-np.log(fit.x[seen]))
-        if k_ref is not None:
-            return k_ref
     declared = default_stiffness(model.robot)
-    if declared is not None and np.all(declared > 0):
-        return float(np.exp(np.mean(np.log(declared))))
-    return NOMINAL_STIFFNESS
+    nominal = (declared if declared is not None and np.all(declared > 0)
+               else [NOMINAL_STIFFNESS])
+    if SPRINGS not in model.families:
+        return typical_stiffness([], [], [], nominal)
+    cut = model.slices()[SPRINGS]
+    kept = set(fit.identifiability.kept)
+    fitted = [i - cut.start for i in range(cut.start, cut.stop)
+              if i in kept and i not in fit.at_bound]
+    return typical_stiffness(fit.x[cut], fit.interval()[0][cut], fitted, nominal)

@@ -23,6 +23,7 @@ import numpy as np
 
 from stiffness.calibration.campaign import Campaign, load_campaign
 from stiffness.calibration.campaign_toml import RobotSettings
+from stiffness.calibration.deflection_noise import interval_quantiles
 from stiffness.calibration.experiment import (
     CRITERIA,
     LOAD_DIRECTIONS,
@@ -42,7 +43,7 @@ from stiffness.calibration.experiment import (
     standard_errors,
 )
 from stiffness.calibration.fitting import reference_stiffness
-from stiffness.calibration.selection import fit_baseline, fit_model, replicate_noise
+from stiffness.calibration.selection import Noise, fit_baseline, fit_model, replicate_noise
 from stiffness.elastic.effects import LIBRARY, make_effect
 from stiffness.elastic.effects.base import effect_place
 from stiffness.elastic.effects.geometry import Geometry, References
@@ -150,20 +151,19 @@ def fit_alternatives(campaign: Campaign, effects: tuple[tuple[str, str | None], 
                     labels=[campaign.describe_row(i) for i in range(campaign.n_rows)],
                     joint_angles=campaign.robot_settings.joint_angles)
     measured = campaign.deflection
-    source = "given"
-    if sigma is None and campaign.noise_std_m is not None:
-        sigma, source = campaign.noise_std_m, "declared noise_std of the campaign"
-    if sigma is None:
-        rep = replicate_noise(campaign)
-        if rep is not None:
-            sigma, source = rep[0], "replicate rows of the campaign"
+    source, known = "given", None if sigma is None else Noise(sigma)
+    if sigma is None and (declared := campaign.noise_std_m) is not None:
+        (sigma, source), known = (declared, "declared noise_std of the campaign"), Noise(declared)
+    if sigma is None and (rep := replicate_noise(campaign)) is not None:
+        (sigma, source), known = (rep[0], "replicate rows of the campaign"), Noise(*rep)
     scale = sigma if sigma is not None else max(float(np.sqrt(np.mean(measured ** 2))) * 1e-2,
                                                 1e-12)
     model0 = Hypothesis(geo, rows, campaign.baseline, tuple(robot.compliant_joints), (),
                         References.of(geo, rows, 1e5, measured))
     base = fit_baseline(model0, measured, scale)
-    base.model = base.model.replaced(refs=References.of(geo, rows, reference_stiffness(base),
-                                                        measured))
+    q = interval_quantiles(known, base, measured.size, None, measured)  # diagnose's intervals
+    k_ref = reference_stiffness(base, q.noise.sigma, q.two_sided(), measured)
+    base.model = base.model.replaced(refs=References.of(geo, rows, k_ref, measured))
     fits = [fit_model(base.model.extended(e), measured, scale, base.model.extend_x(base.x, e))
             for e in chosen]
     if sigma is None:
