@@ -15,6 +15,7 @@ from stiffness.calibration.identify import identify
 from stiffness.calibration.pose_campaign import write_pose_campaign
 from stiffness.calibration.pose_model import Marker
 from stiffness.cli.main import main
+from stiffness.errors import StiffnessError
 from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
 from stiffness.robot.robot import load_robot
 
@@ -145,3 +146,24 @@ def test_a_pose_spring_fitted_beside_a_bound_one_says_it_is_conditional_on_it():
     assert line.endswith("(conditional on shoulder_lift_joint held at its bound)"), line
     assert _conditional(["elbow_joint"], 15, 15).startswith(
         "; undetermined: conditional on elbow_joint held at its bound, with 15 measured")
+
+
+def test_a_massless_robot_without_loads_is_refused_in_one_line():
+    """A URDF without <inertial> (ROS-Industrial's Fanuc R-2000iC/165F) and a tracker campaign
+    without applied loads: gravity bends no joint, so no stiffness acts on the poses. identify
+    printed 'joint_N not fitted (held rigid): no effect on the data' for every joint, which
+    reads as a fault of the data, though its docstring promised a refusal; now one line
+    naming the cause and the fix. The same massless arm under its 400 N loads is identified
+    (the loads bend the springs)."""
+    import dataclasses
+
+    robot = load_robot("ur10", frame="tool0")
+    loaded = _campaign(robot, 0)
+    for k in range(robot.model.njoints):
+        robot.model.inertias[k] = pin.Inertia.Zero()
+    assert sum(i.mass for i in robot.model.inertias) == 0.0
+    with pytest.raises(StiffnessError, match=r"ur10's file gives its links no mass and the "
+                                             r"campaign applies no load: gravity bends no joint"):
+        identify(dataclasses.replace(loaded, loads=None))
+    springs = identify(loaded).to_dict()["joints"]
+    assert sum(j["determined"] for j in springs) >= 3

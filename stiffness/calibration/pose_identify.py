@@ -39,6 +39,7 @@ from stiffness.calibration.result import IdentificationResult
 from stiffness.calibration.selection import material_holders
 from stiffness.elastic.effects.base import Parameter, reciprocal
 from stiffness.elastic.effects.pose_face import compliance_label
+from stiffness.errors import StiffnessError
 from stiffness.files import jsonable
 
 #: A compliance's unit -> its stiffness's.
@@ -231,5 +232,21 @@ def identify_poses(campaign: PoseCampaign, loss: str = "linear",
         An unknown loss; a robot whose springs the campaign cannot load (no masses and no
         applied wrench: ``joint_compliance`` has no parameter).
     """
+    _check_loaded(campaign)
     return PoseIdentification(diagnose_poses(campaign, loss=loss, families=[SPRINGS],
                                              max_steps=0, progress=progress))
+
+
+def _check_loaded(campaign: PoseCampaign) -> None:
+    """Refuse a campaign that loads no spring: a robot whose links have no mass (a URDF
+    without ``<inertial>``) measured under no applied wrench. Every stiffness would have no
+    effect on the data and the report would list each joint "not fitted"."""
+    mass = sum(float(inertia.mass) for inertia in campaign.robot.model.inertias)
+    loads = campaign.loads
+    if mass > 0 or (loads is not None and bool(np.any(loads.wrench != 0))):
+        return
+    raise StiffnessError(
+        f"{campaign.robot.title}'s file gives its links no mass and the campaign applies no "
+        "load: gravity bends no joint, so these poses hold nothing of the springs' stiffness; "
+        "give the links' masses (the robot file's <inertial>) or measure under known loads "
+        "(fx, fy, fz columns); stiffness diagnose calibrates the geometry")
