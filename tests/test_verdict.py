@@ -323,6 +323,7 @@ def test_a_controllers_coupled_joint_is_not_read_as_a_campaign_too_small():
         f"{best['rms']:.4g} m" in note
     assert "more configurations would not make them physical; check each joint's zero, " \
         "sign and axis against the controller's" in note
+    assert "declared in a robot.toml's [controller], the columns are read as logged" in note
 
 
 NOISE_POSES = 20e-6  # m: the tracker noise of test_absolute_poses' campaigns

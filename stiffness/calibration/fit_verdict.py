@@ -116,7 +116,8 @@ def _missing(d: dict) -> str:
                 "and more configurations would not make them physical; check each joint's "
                 "zero, sign and axis against the controller's, and how the controller counts "
                 "its angles (a forearm angle read from the horizontal, as a Fanuc's J3 with its "
-                "J2/J3 interaction, is a serial model's joint 3 plus joint 2)")
+                "J2/J3 interaction, is a serial model's joint 3 plus joint 2: declared in a "
+                "robot.toml's [controller], the columns are read as logged)")
     return (f"{head}, or a library effect this campaign is too small to confirm: the best "
             f"rejected candidate, {did}{_why_rejected(best, unit)}); more configurations or "
             f"loads can confirm it, and --families {forced} forces it in to show its "
