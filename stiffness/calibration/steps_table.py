@@ -139,9 +139,17 @@ def refitted(v: dict) -> str:
     frame = v.get("frame_refit") or {}
     if not frame.get("applied"):
         return "without refitting"
-    return ("with its " + " and ".join({"frame": "measuring frame", "markers": "marker "
-                                        "offsets"}[f] for f in frame["families"])
-            + " fitted there, the rest not refitted")
+    return f"with its {refit_words(frame['families'])} fitted there, the rest not refitted"
+
+
+#: What each family a validation refits is called in its text (``frame_refit``'s ``families``).
+REFIT_WORDS = {"frame": "measuring frame", "markers": "marker offsets"}
+
+
+def refit_words(families: list[str]) -> str:
+    """The refitted ``families`` (``frame_refit``'s) in words: ``measuring frame and marker
+    offsets``."""
+    return " and ".join(REFIT_WORDS[f] for f in families)
 
 
 def _cells(named: list[tuple[str, dict]]) -> tuple[list[str], list[list[str]]]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from stiffness.calibration.outliers import OUTLIER_THRESHOLD, Outlier, describe_outliers
-from stiffness.calibration.steps_table import refitted, stage_table, stages
+from stiffness.calibration.steps_table import refit_words, refitted, stage_table, stages
 from stiffness.htmlpage import esc, table
 
 #: The error keys of a validation record, in the table's order.
@@ -90,9 +90,8 @@ def frame_lines(result: dict, whose: str = "the model's",
     angle = float(np.linalg.norm(frame["rotation_deg"]))
     motion = f"{np.linalg.norm(t):.4g} {frame['unit']} and {angle:.3g} deg"
     if frame["applied"]:
-        what = " and ".join({"frame": "measuring frame", "markers": "marker offsets"}[f]
-                            for f in frame["families"])
-        return [f"{what} fitted to {campaign}: the frame moved by {motion} from {whose}; "
+        return [f"{refit_words(frame['families'])} fitted to {campaign}: the frame moved by "
+                f"{motion} from {whose}; "
                 f"{judged} are after it ({frame['parameters']} parameters)"]
     if frame["rms"] > FRAME_SHARE * result["rms"]:
         return []
