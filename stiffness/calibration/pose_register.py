@@ -43,14 +43,12 @@ import pinocchio as pin
 
 from stiffness.calibration.breakdown import error_summary, rotation_summary
 from stiffness.calibration.campaign import Campaign, campaign_kind
+from stiffness.calibration.outliers import MAD_TO_STD
 from stiffness.calibration.pose_campaign import PoseCampaign, load_pose_campaign
 from stiffness.calibration.pose_fit import predict, rows_of
 from stiffness.calibration.pose_model import Marker, PoseModel
 from stiffness.calibration.pose_orientation import PoseObservations, orientation_errors
 from stiffness.errors import StiffnessError, wrong_argument
-
-#: The normal distribution's std over its median absolute value.
-ROBUST_STD = 1.4826
 
 #: The families a validation may fit to its campaign (``--refit-frame``, ``--refit-markers``).
 REFITTABLE = ("frame", "markers")
@@ -111,7 +109,7 @@ def _gauss_newton(model: PoseModel, x: np.ndarray, campaign: PoseCampaign, frame
             keep = errors <= bound
             r, jac, _ = _observations(model, x, campaign, keep)
         j = jac[:, frame]
-        scale = max(ROBUST_STD * float(np.median(np.abs(r))) if r.size else 0.0,
+        scale = max(MAD_TO_STD * float(np.median(np.abs(r))) if r.size else 0.0,
                     campaign.noise_std or 0.0, np.finfo(float).tiny)
         root = (1.0 + (r / scale) ** 2) ** -0.25 if bound is None else np.ones_like(r)
         step, _, rank, _ = np.linalg.lstsq(j * root[:, None], r * root, rcond=None)
@@ -161,7 +159,6 @@ def refit_frame(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
                "rotation_deg": np.degrees(pin.log3(turn)).tolist(),
                "iterations": iterations,
                "rms": float(np.sqrt(np.mean(np.sum(residual[seen] ** 2, axis=1))))}
-
 
 
 def check_refit(refit: Sequence[str], validated: bool = True) -> tuple[str, ...]:
