@@ -333,3 +333,31 @@ def test_import_reads_quaternion_columns(ur10, tmp_path, capsys):
     capsys.readouterr()
     assert main([*argv, "--out", str(tmp_path / "d")]) == 2
     assert "line 3" in (err := capsys.readouterr().err) and "not a quaternion" in err, err
+
+
+def test_refused_quaternion_quotes_its_own_row(ur10, tmp_path, capsys):
+    """A marker with a row off unit norm by a few percent (warned) before one off by 3x
+    (refused): the refusal quotes the refused row's four values with their own norm, 3 (the
+    values were the warned row's, norm 1.03, beside the other row's norm)."""
+    _, c = _campaign(ur10, 17, n=6)
+    quats = np.array([[pin.Quaternion(pin.exp3(r)).coeffs() for r in row]
+                      for row in c.rotations])
+    quats[1, 0] *= 1.03
+    quats[3, 0] *= 3.0
+    cols = [f"{m}_{a}" for m in ("tip", "elbow") for a in "xyz"] + [
+        f"{m}_q{a}" for m in ("tip", "elbow") for a in "xyzw"]
+    rows = [",".join([f"q{i}" for i in range(1, 7)] + cols)] + [
+        ",".join(repr(float(v)) for v in np.r_[
+            np.rad2deg(c.q[i]), c.positions[i].ravel() * 1e3, quats[i].ravel()])
+        for i in range(c.n_rows)]
+    (tmp_path / "rig.csv").write_text("\n".join(rows) + "\n")
+    assert main(["campaign", "import", str(tmp_path / "rig.csv"), "--robot", "ur10",
+                 "--frame", "tool0", "--units", "angle=deg,length=mm", "--quiet", "--kind",
+                 "poses", "--rotation-format", "quaternion", "--marker", "tip=tool0@0,30,50",
+                 "--marker", "elbow=forearm_link@0,50,200", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    said = re.search(r"= \(([^)]*)\) has norm ([0-9.]+), not 1", err)
+    assert said and "line 5" in err, err
+    values = np.array([float(v) for v in said.group(1).split(",")])
+    np.testing.assert_allclose(values, quats[3, 0], rtol=1e-5)
+    assert float(said.group(2)) == pytest.approx(3.0, rel=1e-5)

@@ -242,15 +242,14 @@ def _quaternions(mapper: ColumnMapper, markers: list[Marker], n: int) -> np.ndar
         columns = mapper.group(tuple(f"{m.name}_{a}" for a in QUATERNION_AXES), True)
         assert columns is not None
         rows = np.flatnonzero(off > QUATERNION_NORM_TOL)
-        said = (f"marker {m.name}'s quaternion (x, y, z, w) = ("
-                f"{', '.join(f'{v:.6g}' for v in values[rows[0]])}) has norm "
-                f"{norms[rows[0]]:.6g}")
-        if off.max() > QUATERNION_NORM_REFUSED:
-            raise columns[0].error(int(np.argmax(off)), f"{said.split(' has norm')[0]} has norm "
-                                   f"{norms[int(np.argmax(off))]:.6g}, not 1: not a quaternion; "
-                                   f"map {m.name}_qx,_qy,_qz,_qw to the quaternion's x, y, z "
-                                   "and w (scalar) columns")
+        if off.max() > QUATERNION_NORM_REFUSED:  # the worst row's own values and norm
+            worst = int(np.argmax(off))
+            said = _quaternion_text(m, values[worst], norms[worst])
+            raise columns[0].error(worst, f"{said}, not 1: not a quaternion; map "
+                                   f"{m.name}_qx,_qy,_qz,_qw to the quaternion's x, y, z and w "
+                                   "(scalar) columns")
         lines = columns[0].lines
+        said = _quaternion_text(m, values[rows[0]], norms[rows[0]])
         warnings.warn(f"{columns[0].path}: {rows.size} of {int(np.isfinite(norms).sum())} rows "
                       f"hold quaternions off unit norm by more than {QUATERNION_NORM_TOL:g} "
                       f"(first: line {lines[rows[0]]}, {said}); read normalised: check "
@@ -258,6 +257,13 @@ def _quaternions(mapper: ColumnMapper, markers: list[Marker], n: int) -> np.ndar
                       f"{', '.join(str(lines[r]) for r in rows[:5])}", DataFileWarning,
                       stacklevel=2)
     return out if found else None
+
+
+def _quaternion_text(marker: Marker, quaternion: np.ndarray, norm: float) -> str:
+    """A marker's row of quaternion cells and its norm, as the warning and the refusal quote
+    them."""
+    return (f"marker {marker.name}'s quaternion (x, y, z, w) = ("
+            f"{', '.join(f'{v:.6g}' for v in quaternion)}) has norm {norm:.6g}")
 
 
 def _scaled_markers(markers: list[Marker], marker_turns: dict[str, np.ndarray] | None,
