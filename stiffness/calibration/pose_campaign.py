@@ -182,6 +182,16 @@ class PoseCampaign:
                        lines=None if self.lines is None else tuple(self.lines[i] for i in idx))
 
 
+def loads_no_spring(campaign: PoseCampaign) -> bool:
+    """Whether nothing in ``campaign`` loads a spring: its robot's links have no mass (a robot
+    file without ``<inertial>``, as ROS-Industrial's) and it applies no wrench (no ``fx..mz``
+    columns, or all zero). Gravity then bends no joint and the poses hold nothing of the
+    springs' stiffness."""
+    mass = sum(float(inertia.mass) for inertia in campaign.robot.model.inertias)
+    loads = campaign.loads
+    return mass <= 0 and (loads is None or not bool(np.any(loads.wrench != 0)))
+
+
 def _check_table(doc: dict, section: str, toml: TomlFile) -> None:
     check_table_keys(doc, section, toml, _KEYS[section], _REQUIRED[section],
                      lambda key, label: f"missing key {key} in {label} of a pose campaign: "

@@ -36,8 +36,14 @@ import numpy as np
 
 from stiffness.calibration.identifiability import confounded
 from stiffness.calibration.naming import held_reason, namable, settle
-from stiffness.calibration.pose_campaign import PoseCampaign
-from stiffness.calibration.pose_diagnosis import BASE_FAMILIES, NO_PARAMETER, PoseDiagnosis
+from stiffness.calibration.pose_campaign import PoseCampaign, loads_no_spring
+from stiffness.calibration.pose_diagnosis import (
+    BASE_FAMILIES,
+    NO_PARAMETER,
+    NO_PARAMETER_NOTES,
+    UNLOADED,
+    PoseDiagnosis,
+)
 from stiffness.calibration.pose_fit import (
     PoseFit,
     campaign_settings,
@@ -86,6 +92,9 @@ CANDIDATES = {"known": ("joint_offsets", "geometry", "joint_compliance",  # keys
                         "link_compliance", "transversal_compliance", "base_tilt", "backlash",
                         "gravity_compensator", "nonlinear_joint_stiffness"),
               "unknown": ("joint_offsets", "geometry", "gravity_lumped")}
+#: The families that act through the links' weight and the applied loads (tried only with the
+#: masses known): none has an effect where nothing loads a spring (:data:`UNLOADED`).
+WEIGHED = frozenset(CANDIDATES["known"]) - frozenset(CANDIDATES["unknown"])
 #: A progress-bar factory: given a label, a ``(done, total)`` callback or ``None``.
 Bar = Callable[[str], Callable[[int, int], None] | None]
 
@@ -542,10 +551,11 @@ class PoseSearch:
         held_out: dict[str, float] = {}
         screens = {f: screened(c, families + [f], self.frame0, self.settings, current)
                    for f in ready}
+        unloaded = loads_no_spring(c)
         for f, (_, _, fresh) in screens.items():  # none new: BIC change 0, no verdict: said
             if fresh == 0:
-                self.not_judged[f] = NO_PARAMETER
-            elif self.not_judged.get(f) == NO_PARAMETER:
+                self.not_judged[f] = UNLOADED if unloaded and f in WEIGHED else NO_PARAMETER
+            elif self.not_judged.get(f) in NO_PARAMETER_NOTES:
                 del self.not_judged[f]
         self.delta = self.deltas(current, {f: (s[0], s[1]) for f, s in screens.items()})
         order = sorted((f for f in ready if self.delta[f] < -BIC_MARGIN and screens[f][2] > 0),

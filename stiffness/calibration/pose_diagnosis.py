@@ -37,6 +37,15 @@ BASE_FAMILIES = ("frame", "markers")
 #: Why a family has no BIC change to show: no identifiable parameter (a tilt, no spring in).
 NO_PARAMETER = ("no identifiable parameter beside the families in: it moves no marker here, "
                 "or only as they do")
+#: :data:`NO_PARAMETER` where the cause is that nothing loads a spring (a family of the
+#: weight and the loads, on a robot file without link masses and a campaign without loads:
+#: :func:`~stiffness.calibration.pose_campaign.loads_no_spring`), with the fix.
+UNLOADED = ("no identifiable parameter: no spring is loaded, the robot file giving its links "
+            "no mass and the campaign applying no load; declare the links' <inertial> masses, "
+            "or measure under known loads (fx..mz columns), or diagnose with --masses unknown "
+            "(gravity_lumped fits the weight)")
+#: The notes of a family screened with no identifiable parameter (no BIC change to judge).
+NO_PARAMETER_NOTES = (NO_PARAMETER, UNLOADED)
 #: The held-out criterion of every step (``cv_rms``): leave one configuration out, from the
 #: linearised hat matrix (:func:`~stiffness.calibration.pose_fit.held_out_rms`).
 HELD_OUT_CRITERION = "leave-one-configuration-out (linearised hat matrix)"
@@ -108,10 +117,11 @@ class PoseDiagnosis(DiagnosisResult[PoseCampaign, str, PoseFit]):
         """:meth:`DiagnosisResult.best_rejected`; when the last step fitted no family (none
         past the BIC margin on its one Gauss-Newton screen), the family of :attr:`rejected`
         with the lowest BIC change (of those with an identifiable parameter,
-        :data:`NO_PARAMETER`), its RMS and held-out RMS not known (null)."""
+        :data:`NO_PARAMETER_NOTES`), its RMS and held-out RMS not known (null)."""
         best = super().best_rejected()
         refusal = None if self.search is None else self.search.refusal
-        tried = {f: d for f, d in self.rejected.items() if self.not_judged.get(f) != NO_PARAMETER}
+        tried = {f: d for f, d in self.rejected.items()
+                 if self.not_judged.get(f) not in NO_PARAMETER_NOTES}
         if best is not None or refusal is None or not tried:
             return best
         family = min(tried, key=tried.__getitem__)

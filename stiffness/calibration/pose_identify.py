@@ -30,7 +30,7 @@ import numpy as np
 
 from stiffness.calibration.fit_verdict import verdict_line
 from stiffness.calibration.outliers import describe_outliers, outlier_keys
-from stiffness.calibration.pose_campaign import PoseCampaign
+from stiffness.calibration.pose_campaign import PoseCampaign, loads_no_spring
 from stiffness.calibration.pose_diagnose import diagnose_poses
 from stiffness.calibration.pose_diagnosis import PoseDiagnosis
 from stiffness.calibration.pose_model_file import parameter_table
@@ -241,9 +241,7 @@ def _check_loaded(campaign: PoseCampaign) -> None:
     """Refuse a campaign that loads no spring: a robot whose links have no mass (a URDF
     without ``<inertial>``) measured under no applied wrench. Every stiffness would have no
     effect on the data and the report would list each joint "not fitted"."""
-    mass = sum(float(inertia.mass) for inertia in campaign.robot.model.inertias)
-    loads = campaign.loads
-    if mass > 0 or (loads is not None and bool(np.any(loads.wrench != 0))):
+    if not loads_no_spring(campaign):
         return
     raise StiffnessError(
         f"{campaign.robot.title}'s file gives its links no mass and the campaign applies no "

@@ -41,9 +41,12 @@ STAGE_FIGURE = "stages.png"
 def not_added(rejected: dict[str, float], not_judged: dict[str, str]) -> str:
     """The families tried and not added, each with its last BIC change, or why the search
     dropped it without judging it (a screened BIC change of a fit that could not be made is
-    no verdict)."""
-    return ", ".join(f"{f} ({not_judged[f]})" if f in not_judged else f"{f} ({v:+.3g})"
-                     for f, v in rejected.items())
+    no verdict); families in a row dropped for one reason share its note."""
+    names = list(rejected)
+    notes = [not_judged.get(f) for f in names]
+    return ", ".join(f"{f} ({rejected[f]:+.3g})" if note is None
+                     else f if notes[k + 1:k + 2] == [note] else f"{f} ({note})"
+                     for k, (f, note) in enumerate(zip(names, notes, strict=True)))
 
 
 def stage_plot(d: dict) -> bytes | None:
