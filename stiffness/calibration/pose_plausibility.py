@@ -243,9 +243,7 @@ class Plausibility:
             parts.append(f"the measured markers move {self.spread:.3g} times as far between "
                          f"poses as {self.robot}'s kinematics moves them")
         if self.beyond:
-            quoted = ", ".join(b.text() for b in self.beyond[:QUOTED])
-            more = len(self.beyond) - QUOTED
-            parts.append(f"the fit moves {quoted}" + (f" (and {more} more)" if more > 0 else "")
+            parts.append(f"the fit moves {_quoted([b.text() for b in self.beyond])}"
                          + f", beyond what a calibration corrects on a robot of reach "
                          f"{self.reach_m:.3g} m (a tenth of it for a placement, all of it for "
                          "a marker)")
@@ -327,13 +325,16 @@ def _shifted(fit: PoseFit) -> tuple[Beyond, ...]:
     return tuple(sorted(out, key=lambda b: -abs(b.value) / b.limit))
 
 
+def _quoted(texts: list[str]) -> str:
+    """The first :data:`QUOTED` of ``texts``, joined, and how many more there are."""
+    more = len(texts) - QUOTED
+    return ", ".join(texts[:QUOTED]) + (f" (and {more} more)" if more > 0 else "")
+
+
 def _shifted_text(shifted: tuple[Beyond, ...]) -> str:
     """The lengths ``shifted`` beyond their limits (the first :data:`QUOTED`), with their
     limits, as the verdict and a search's refusal quote them."""
-    quoted = ", ".join(f"{b.parameter} {b.value:+.3g} m (limit {b.limit:.3g} m)"
-                       for b in shifted[:QUOTED])
-    more = len(shifted) - QUOTED
-    return (quoted + (f" (and {more} more)" if more > 0 else "")
+    return (_quoted([f"{b.parameter} {b.value:+.3g} m (limit {b.limit:.3g} m)" for b in shifted])
             + f", beyond what a turn of {math.degrees(DEFLECTION_OFFSET_RAD):.3g} deg moves "
             "a joint over its link (the distance from the previous joint, at least "
             f"{PLACEMENT_FRACTION:g} of the reach)")
@@ -365,11 +366,9 @@ def _cancelling(fit: PoseFit, turned: tuple[Beyond, ...]) -> tuple[Cancelling, .
 def _turned_text(turned: tuple[Beyond, ...], cancelling: tuple[Cancelling, ...]) -> str:
     """The angles ``turned`` beyond their limits (the first :data:`QUOTED`) and the pairs
     that cancel, as the verdict and a search's refusal quote them."""
-    quoted = ", ".join(b.text() for b in turned[:QUOTED])
-    more = len(turned) - QUOTED
     limit = max(b.limit for b in turned)
     cancel = "".join(f"; {c.text()}" for c in cancelling)
-    return (quoted + (f" (and {more} more)" if more > 0 else "")
+    return (_quoted([b.text() for b in turned])
             + f", beyond the {math.degrees(limit):.3g} deg an encoder zero, a joint axis or a "
             f"level base is off by{cancel}")
 
