@@ -392,3 +392,50 @@ def test_a_merge_through_a_held_column_says_it_is_not_fitted():
     entry = next(d for d in held.to_dict(labels)["dropped"]
                  if d["parameter"] == labels[merged.index])
     assert entry["through_held"] == [labels[kept[0]]]
+
+
+def _near_collinear(rng, rows=40, sine=1e-3):
+    """Columns a, b (b = a turned by ``sine`` rad: two placements nearly alike, both kept)
+    and g, random."""
+    a, g, n = rng.normal(size=(3, rows))
+    n -= a * (a @ n) / (a @ a)
+    b = a + sine * np.linalg.norm(a) * n / np.linalg.norm(n)
+    return a, b, g
+
+
+def test_a_merge_through_a_held_column_is_re_expressed_over_the_fitted_ones():
+    """Placements a and b nearly alike (b is a turned by 1e-3 rad), g another, and a later
+    group's c = g + 0.5 b (merged: 1 x g + 0.5 x b). Once b is held as undetermined the
+    fitted a and g carry c but for 0.5 x the part of b they miss (the data do not determine
+    that part of b at its typical size, so neither that of c): the merge is re-expressed
+    over a and g, its coefficients those of c regressed on a and g alone (least squares on
+    the full columns), not 'not fitted'. With c = g + 504 b - 503.5 a (near-cancelling
+    coefficients, the TALOS left arm's) the part of c a and g miss is 504 x b's: no
+    expression over the fitted ones; the clause says it is not fitted and the +-504 are
+    reported as they are."""
+    rng = np.random.default_rng(7)
+    a, b, g = _near_collinear(rng)
+    labels = ["a", "b", "g", "c"]
+    why = Held("held at its nominal value: the data do not determine it")
+    columns = np.column_stack([a, b, g, g + 0.5 * b])
+    ident = reduce_columns(columns, [[0, 1, 2], [3]], np.ones(4))
+    assert sorted(ident.kept) == [0, 1, 2]
+    assert dict(ident.dropped_at(3).merged_into) == pytest.approx({2: 1.0, 1: 0.5}, abs=1e-6)
+    merged = ident.holding({1: why}).dropped_at(3)
+    expected, *_ = np.linalg.lstsq(columns[:, [0, 2]], columns[:, 3], rcond=None)
+    assert dict(merged.merged_into) == pytest.approx({0: expected[0], 2: expected[1]},
+                                                     abs=1e-9)
+    assert expected[0] == pytest.approx(0.5, abs=1e-2) and merged.through_held == ()
+    assert merged.describe(labels).startswith("merged: acts on the data as 1 x g + 0.5 x a")
+    entry = ident.holding({1: why}).to_dict(labels)["dropped"][0]
+    assert entry["parameter"] == "c" and entry["through_held"] == []
+
+    columns[:, 3] = g + 504.0 * b - 503.5 * a
+    ident = reduce_columns(columns, [[0, 1, 2], [3]], np.ones(4))
+    assert dict(ident.dropped_at(3).merged_into) == pytest.approx(
+        {1: 504.0, 0: -503.5, 2: 1.0}, rel=1e-6)
+    for hold in (0, 1):
+        merged = ident.holding({hold: why}).dropped_at(3)
+        assert merged.through_held == (hold,)
+        assert merged.describe(labels).startswith(
+            f"merged into a combination (504 x b + -503 x a + 1 x g) with {labels[hold]}")

@@ -90,10 +90,11 @@ class Dropped:
         For an undetermined parameter: why, and what takes its share.
     through_held
         For a merged parameter: the columns of its combination held afterwards as
-        undetermined (:meth:`Identifiability.holding`): the combination is not fitted, it
-        stays at its nominal value (FIGAROH's TALOS left arm: arm_left_4_joint placement y
-        read "acts on the data as -504 x arm_left_4_joint placement z + 504 x
-        arm_left_3_joint placement z", the first held).
+        undetermined (:meth:`Identifiability.holding`) when it has no expression over the
+        parameters fitted: the combination is not fitted, it stays at its nominal value
+        (FIGAROH's TALOS left arm: arm_left_4_joint placement y read "acts on the data as -504
+        x arm_left_4_joint placement z + 504 x arm_left_3_joint placement z", the first
+        held).
     """
 
     index: int
@@ -126,10 +127,17 @@ class Dropped:
 
 @dataclass
 class Identifiability:
-    """The identifiable columns of a regressor and the dropped ones."""
+    """The identifiable columns of a regressor and the dropped ones.
+
+    ``factor`` and ``scales`` (set by :func:`reduce_columns`): the triangular factor of the
+    scaled columns reduced and each parameter's typical size, with which :meth:`holding`
+    re-expresses a merge over the parameters still fitted.
+    """
 
     kept: list[int]
     dropped: list[Dropped]
+    factor: np.ndarray | None = field(default=None, repr=False, compare=False)
+    scales: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def full(cls, p: int) -> Identifiability:
@@ -138,15 +146,27 @@ class Identifiability:
 
     def holding(self, held: dict[int, Held]) -> Identifiability:
         """This reduction with the columns of ``held`` (column: why) dropped as
-        ``undetermined``; a merged column whose combination holds one of them says so
+        ``undetermined``. A merged column whose combination holds one of them is re-expressed
+        over the columns still kept (:func:`over_fitted`: its column regressed on theirs
+        alone) when they carry it; else it says its combination is not fitted
         (:attr:`Dropped.through_held`)."""
-        return Identifiability([i for i in self.kept if i not in held],
-                               [replace(d, through_held=tuple(dict.fromkeys(
-                                   (*d.through_held, *(i for i, _ in d.merged_into
-                                                       if i in held)))))
-                                for d in self.dropped if d.index not in held]
+        kept = [i for i in self.kept if i not in held]
+        return Identifiability(kept, [self._rebased(d, held, kept) for d in self.dropped
+                                      if d.index not in held]
                                + [Dropped(i, "undetermined", held=why)
-                                  for i, why in held.items()])
+                                  for i, why in held.items()], self.factor, self.scales)
+
+    def _rebased(self, d: Dropped, held: dict[int, Held], kept: list[int]) -> Dropped:
+        """``d`` once ``held`` are held and ``kept`` fitted (:meth:`holding`)."""
+        through = tuple(i for i, _ in d.merged_into if i in held)
+        if not through:
+            return d
+        if self.factor is not None and self.scales is not None:
+            before = list(dict.fromkeys((*self.kept, *(i for i, _ in d.merged_into))))
+            again = over_fitted(self.factor, self.scales, d.index, before, kept, through)
+            if again is not None:
+                return again
+        return replace(d, through_held=tuple(dict.fromkeys((*d.through_held, *through))))
 
     def dropped_at(self, index: int) -> Dropped | None:
         """The :class:`Dropped` of column ``index``, or ``None`` when it is kept."""
@@ -344,7 +364,7 @@ def reduce_columns(a: np.ndarray, groups: list[list[int]], scales: np.ndarray,
                 rest[:, inside], IDENTIFIABILITY_TOL * own[inside])]
         kept += joined
         dropped += _merged(a, kept, [c for c in candidates if c not in joined], scales)
-    return Identifiability(kept, dropped)
+    return Identifiability(kept, dropped, a, np.asarray(scales, dtype=float))
 
 
 def _pivoted(a: np.ndarray, floors: np.ndarray) -> list[int]:
@@ -386,3 +406,30 @@ def _merged(a: np.ndarray, kept: list[int], columns: list[int], scales: np.ndarr
                       if abs(coef[i]) * scales[column] > 1e-6 * scales[kept[i]])
         out.append(Dropped(column, "merged", pairs))
     return out
+
+
+def over_fitted(a: np.ndarray, scales: np.ndarray, column: int, before: list[int],
+                after: list[int], held: tuple[int, ...]) -> Dropped | None:
+    """The merged ``column`` of the scaled columns ``a`` re-expressed over ``after`` (the
+    columns still fitted once ``held``, columns of its combination over ``before``, are held
+    as undetermined): its column regressed on theirs alone (the held columns projected out),
+    coefficients as :func:`_merged` gives them. ``None`` (no expression over the fitted
+    parameters) unless the part of it they leave beyond what ``before`` left is no larger
+    than the part they leave of a held column (both at their typical sizes: the data do not
+    determine that one, so neither this part) and its sine to their span is below
+    :data:`NEAR_ALIAS_SINE` (nearly in it, as a near alias merged under a resolution)."""
+    if not after:
+        return None
+    c = a[:, column]
+    left = _unexplained(a[:, after], c)
+    extra = math.sqrt(max(left ** 2 - _unexplained(a[:, before], c) ** 2, 0.0))
+    limit = max(_unexplained(a[:, after], a[:, h]) for h in held)
+    if extra > (1.0 + PIVOT_TIE) * limit or left >= NEAR_ALIAS_SINE * np.linalg.norm(c):
+        return None
+    return _merged(a, after, [column], scales)[0]
+
+
+def _unexplained(basis: np.ndarray, column: np.ndarray) -> float:
+    """Norm of the part of ``column`` the columns ``basis`` do not explain (least squares)."""
+    coef, *_ = np.linalg.lstsq(basis, column, rcond=None)
+    return float(np.linalg.norm(column - basis @ coef))
