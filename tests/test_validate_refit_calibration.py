@@ -20,6 +20,8 @@ docs/absolute-poses.md, Another day.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -150,3 +152,48 @@ def test_oriented_markers_are_in_the_registration(robot, tmp_path):
     assert low <= rejected <= high, rejected
     p = np.array([r["gof_p_with_parameters"] for r in results])
     assert stats.kstest(p, "uniform").pvalue > 0.01
+
+
+def test_an_orientation_seen_without_its_position_is_in_the_registration(robot, tmp_path):
+    """Day B's marker seen at 8 orientations but at 5 positions (3 rows' positions lost):
+    the verdict tests the 15 position and 24 orientation components less the 6 refitted, and
+    the frame is fitted to the same components. Checked independently of the registration:
+    the frame fitted by scipy's least squares to those 39 components (orientations weighted
+    sigma_t / sigma_r) lowers the registered frame's sum of squares (in noise stds squared)
+    by less than 1e-6. Before, the 9 orientations without positions were left out of the
+    refit: the drop was 0.21, 3.28, 4.44 on these seeds, and over 200 seeds a right model was
+    rejected in 16 (8 %, KS p of the p-values 0.0018); now 6 (3 %, KS p 0.43)."""
+    from scipy.optimize import least_squares
+
+    from stiffness.calibration.pose_model_file import read_pose_model
+    from stiffness.calibration.pose_register import (
+        registered,
+        validation_orientations,
+        validation_residual,
+    )
+
+    for seed in range(3):
+        model, day_b = _days(robot, 300 + seed, tmp_path, turns=TURN_NOISE)
+        positions = day_b.positions.copy()
+        positions[:3] = np.nan
+        day_b = dataclasses.replace(day_b, positions=positions)
+        assert np.isfinite(day_b.rotations[:3]).all()
+        result = stiffness.validate(model, day_b, refit=("frame",)).to_dict()
+        assert result["dof"] == 5 * 3 + 8 * 3 - 6
+        calibration = read_pose_model(model, day_b.robot)
+        moved, _ = registered(calibration.model, calibration.x, day_b, ("frame",))
+        frame = calibration.model.slices()["frame"]
+
+        def components(values, at=moved, model=calibration.model, campaign=day_b,
+                       frame=frame):
+            x = at.copy()
+            x[frame] = values
+            r = validation_residual(model, x, campaign)
+            turned, _ = validation_orientations(model, x, campaign)
+            return np.concatenate([r[np.isfinite(r)], NOISE / TURN_NOISE * turned]) / NOISE
+
+        assert components(moved[frame]).size == 5 * 3 + 8 * 3
+        start = float(np.sum(components(moved[frame]) ** 2))
+        best = least_squares(components, moved[frame], x_scale="jac", xtol=1e-15, ftol=1e-15,
+                             gtol=1e-15)
+        assert start - 2.0 * best.cost < 1e-6, (seed, start - 2.0 * best.cost)

@@ -74,8 +74,9 @@ def _observations(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
     """Measured minus predicted over the seen markers (of ``keep`` (n, M) when given):
     positions (m) and, on a campaign measuring orientations with both noises declared, the
     orientations (rad) weighted by ``sigma_t / sigma_r`` (m/rad) below, as the fit and the
-    verdict weigh them; their Jacobian (N, p) and the seen markers' 3-D errors (n, M) (m, 0
-    where unseen)."""
+    verdict weigh them, a marker's orientation also where its position is not seen (the
+    verdict counts it: left out until 6 December 2026, the frame missed its rows); their
+    Jacobian (N, p) and the seen markers' 3-D errors (n, M) (m, 0 where unseen)."""
     residual, jac = validation_jacobian(model, x, campaign)
     seen = np.isfinite(residual).all(axis=2)
     rows = seen if keep is None else seen & keep
@@ -86,8 +87,9 @@ def _observations(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
         turned, turned_jac = validation_orientations(model, x, campaign)
         measured = _in_model_order(model.markers, campaign).rotations
         assert measured is not None  # the campaign's, reordered
-        oriented = np.isfinite(measured)
-        kept = np.broadcast_to(rows[..., None], oriented.shape)[oriented]
+        oriented = np.isfinite(measured)  # a marker's orientation seen with no position too
+        turns = np.ones_like(seen) if keep is None else keep
+        kept = np.broadcast_to(turns[..., None], oriented.shape)[oriented]
         r = np.concatenate([r, weight * turned[kept]])
         j = np.vstack([j, weight * turned_jac[kept]])
     return r, j, np.linalg.norm(np.where(seen[..., None], residual, 0.0), axis=2)
