@@ -129,3 +129,28 @@ def test_a_campaign_of_some_of_the_model_markers_is_validated(days, tmp_path):
                                             c.markers[1]])
     with pytest.raises(StiffnessError, match="marker 'probe' .* is not a marker of the model"):
         stiffness.validate(model, other)
+
+
+def test_a_model_fitted_without_its_frame_is_validated(tmp_path, capsys):
+    """A pose model fitted without the ``frame`` family (a tracker already registered to the
+    robot's base) has no frame to register: validated as before the registration came (its
+    3-D RMS that of the noise alone, ``sqrt(3)`` noise stds within 30 %, seeds fixed;
+    ``frame_refit`` null), not refused; ``--refit-frame`` on it is refused naming that flag."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = MARKERS[:1]
+    hidden = HiddenPoseErrors(np.eye(3), np.zeros(3), np.array([m.offset for m in markers]),
+                              np.zeros(6), np.zeros((6, 6)))
+    day_a = simulate_pose_campaign(robot, markers, hidden, 20, NOISE, seed=1)
+    day_b = simulate_pose_campaign(robot, markers, hidden, 12, NOISE, seed=2)
+    families = ["markers", "joint_offsets"]
+    model = PoseModel(robot, day_a.markers, tuple(families), starting_frame(day_a),
+                      day_a.loads)
+    fit = fit_pose_model(model, day_a, rows_of(model, day_a), families)
+    path = write_pose_model(fit, day_a, tmp_path / "model.json")
+    stiffness.write_pose_campaign(day_b, tmp_path / "b")
+    result = stiffness.validate(path, tmp_path / "b").to_dict()
+    assert result["frame_refit"] is None
+    assert result["rms"] == pytest.approx(np.sqrt(3) * NOISE, rel=0.3)
+    assert main(["validate", str(path), str(tmp_path / "b"), "--refit-frame"]) == 2
+    err = capsys.readouterr().err
+    assert "no frame family" in err and "(--refit-frame, --refit-markers)" in err, err

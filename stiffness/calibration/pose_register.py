@@ -141,10 +141,11 @@ def refit_frame(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
     """
     slices = model.slices()
     if missing := [f for f in families if f not in slices]:
+        flags = "--refit-markers" if "frame" not in missing else "--refit-frame, --refit-markers"
         raise StiffnessError(
             f"the model has no {' or '.join(missing)} family to fit to the campaign (its "
             f"families: {', '.join(model.families)}); validate it without refitting "
-            f"{' or '.join(missing)} (--refit-markers), or a model fitted with it")
+            f"{' or '.join(missing)} ({flags}), or a model fitted with it")
     frame = np.concatenate([np.arange(slices[f].start, slices[f].stop) for f in families])
     given = np.array(x, dtype=float)
     x, robust_steps, _, scale = _gauss_newton(model, given.copy(), campaign, frame, None)
@@ -183,9 +184,10 @@ def check_refit(refit: Sequence[str], validated: bool = True) -> tuple[str, ...]
 
 
 def registered(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
-               refit: Sequence[str] = ()) -> tuple[np.ndarray, dict]:
+               refit: Sequence[str] = ()) -> tuple[np.ndarray, dict | None]:
     """The parameters a fitted model is judged with on ``campaign``, and its measuring frame
-    registered anew there (:func:`refit_frame`, in every case).
+    registered anew there (:func:`refit_frame`, in every case but a model fitted without the
+    ``frame`` family, which has none to register: then ``None`` without ``refit``).
 
     Returns
     -------
@@ -202,6 +204,8 @@ def registered(model: PoseModel, x: np.ndarray, campaign: PoseCampaign,
         A ``refit`` not of :data:`REFITTABLE`; the campaign's markers not the model's.
     """
     refit = check_refit(refit)
+    if not refit and "frame" not in model.slices():  # no frame fitted: nothing to register
+        return np.asarray(x, dtype=float), None
     moved, registration = refit_frame(model, x, campaign, refit or ("frame",))
     lu = campaign.units.length_to_si
     return (moved if refit else np.asarray(x, dtype=float)), {

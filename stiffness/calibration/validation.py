@@ -274,7 +274,7 @@ class Validation:
         ``markers`` with ``--refit-markers``), ``parameters`` (their identifiable count),
         ``rms`` (the 3-D RMS after it),
         ``translation`` (campaign length unit) and ``rotation_deg`` of the motion; ``None``
-        for a deflection model.
+        for a deflection model, or a pose model fitted without its ``frame`` family.
     refitted
         Parameters fitted to the campaign (those of ``frame["parameters"]`` when applied): the
         chi-square's degrees of freedom are the components less these.
@@ -484,7 +484,7 @@ def validate(model: ModelFile | str | os.PathLike,
                            [f"{m.name}_{a}" for m in calibration.model.markers for a in "xyz"])
     return Validation(name, campaign_name(campaign), "poses", errors, robot, noise, term,
                       rotations, flagged, registered,
-                      registered["parameters"] if refit else 0)
+                      registered["parameters"] if refit and registered else 0)
 
 
 def refitted_jacobian(jacobian: np.ndarray, refitted: list[int]) -> np.ndarray:

@@ -20,7 +20,7 @@ covariance). The campaign must be of the model's robot (one line refuses another
 ``dof``, ``gof_p``, ``verdict``, ``chi2_with_parameters``, ``gof_p_with_parameters``,
 ``verdict_test``, ``parameter_uncertainty``, ``frame_refit`` (the measuring frame registered
 anew on the campaign: ``applied`` with ``--refit-frame``, ``rms`` after it, ``translation``,
-``rotation_deg``; ``null`` for a deflection model)
+``rotation_deg``; ``null`` for a deflection model or a pose model fitted without its frame)
 (:class:`stiffness.calibration.validation.Validation`).
 """
 
