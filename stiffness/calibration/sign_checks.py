@@ -61,6 +61,9 @@ FLIP_GAIN = 10.0
 #: A reversal whose fit stays above this many times the noise std in RMS is said to leave
 #: something else unexplained.
 FLIP_NOISE = 2.0
+#: Stiffnesses (SI) each refit starts within, the fit's clipped to them: a rigid spring's
+#: ``ln k`` has no slope to leave from (identify's random starts' range).
+START_RANGE_SI = (1e2, 1e8)
 #: The columns checked, by the campaign array and component they are (the moment and rotation
 #: columns when the campaign has them).
 COLUMNS = {f"{prefix}{axis}": (array, j)
@@ -135,8 +138,8 @@ def reversed_fits(campaign: Campaign, build: Callable[[Campaign], Hypothesis], x
         measured = observations(other.deflection, other.rotation, weight)
         model = build(other).replaced(rotation_weight=weight)
         start = np.array(x, dtype=float)
-        n = len(model.compliant)  # a rigid spring's ln k has no slope
-        start[:n] = np.clip(start[:n], math.log(1e2), math.log(1e8))
+        n = len(model.compliant)
+        start[:n] = np.clip(start[:n], *np.log(START_RANGE_SI))
         fit = fit_model(model, measured, sigma, start, "trf", anchor=start, **options)
         translations = fit.predicted[:, :3] - measured[:, :3]
         out[name] = (fit.rss, float(np.sqrt(np.mean(translations ** 2))))
