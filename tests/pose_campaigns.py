@@ -88,3 +88,31 @@ links = [
   { mass = 1.5, com = [-0.07, 0.0, 0.0] },
 ]
 """.replace("{}", "lower = 0.0, ")
+
+
+#: The tracker's motion between the two days of :func:`ur10_two_days`: a turn (rotation
+#: vector, rad) and a shift (m).
+TWO_DAYS_TURN = np.radians(4.0) * np.array([0.6, 0.0, 0.8])
+TWO_DAYS_SHIFT = np.array([0.03, -0.01, 0.005])
+
+
+def ur10_two_days(noise: float) -> tuple[PoseCampaign, PoseCampaign]:
+    """Day A (30 poses, seed 5) and day B (15 poses, seed 6) of a UR10's two markers
+    (:func:`ur10_markers`, ``noise`` m): the same hidden marker and zero offsets, the
+    measuring frame moved rigidly between them (``D = exp(TWO_DAYS_TURN)``,
+    ``d = TWO_DAYS_SHIFT``)."""
+    robot = load_robot("ur10", frame="tool0")
+    markers = ur10_markers()
+    rng = np.random.default_rng(5)
+    rotation, translation = pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3)
+    offsets = np.array([m.offset for m in markers]) + rng.normal(0, 2e-3, (2, 3))
+    zeros = rng.normal(0.0, 1e-3, 6)
+    day_a = simulate_pose_campaign(
+        robot, markers, HiddenPoseErrors(rotation, translation, offsets, zeros,
+                                         np.zeros((6, 6))), 30, noise, seed=5)
+    motion = pin.exp3(TWO_DAYS_TURN)
+    day_b = simulate_pose_campaign(
+        robot, markers, HiddenPoseErrors(motion @ rotation, motion @ translation
+                                         + TWO_DAYS_SHIFT, offsets, zeros, np.zeros((6, 6))),
+        15, noise, seed=6)
+    return day_a, day_b

@@ -16,22 +16,17 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from pose_campaigns import TWO_DAYS_SHIFT, TWO_DAYS_TURN, ur10_markers, ur10_two_days
 
 import stiffness
-from stiffness.calibration.pose_model import Marker
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
-from stiffness.planning.simulate_poses import HiddenPoseErrors, simulate_pose_campaign
-from stiffness.robot.robot import load_robot
 from stiffness.robot.sources import robots_directory
 
 NOISE = 20e-6  # m
-MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-           Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-TURN = np.radians(4.0) * np.array([0.6, 0.0, 0.8])  # rad, the tracker turned between days
-SHIFT = np.array([0.03, -0.01, 0.005])  # m
+MARKERS = ur10_markers()
+TURN, SHIFT = TWO_DAYS_TURN, TWO_DAYS_SHIFT  # rad, m: the tracker's motion between the days
 
 
 @pytest.fixture(scope="module")
@@ -39,18 +34,7 @@ def days(tmp_path_factory):
     """Day A's and day B's campaign folders: the same hidden marker and zero offsets, the
     measuring frame moved (rigidly: ``D``, ``d``)."""
     root = tmp_path_factory.mktemp("drefit")
-    robot = load_robot("ur10", frame="tool0")
-    rng = np.random.default_rng(5)
-    rotation, translation = pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3)
-    offsets = np.array([m.offset for m in MARKERS]) + rng.normal(0, 2e-3, (2, 3))
-    zeros = rng.normal(0.0, 1e-3, 6)
-    day_a = simulate_pose_campaign(
-        robot, MARKERS, HiddenPoseErrors(rotation, translation, offsets, zeros,
-                                         np.zeros((6, 6))), 30, NOISE, seed=5)
-    motion = pin.exp3(TURN)
-    day_b = simulate_pose_campaign(
-        robot, MARKERS, HiddenPoseErrors(motion @ rotation, motion @ translation + SHIFT,
-                                         offsets, zeros, np.zeros((6, 6))), 15, NOISE, seed=6)
+    day_a, day_b = ur10_two_days(NOISE)
     stiffness.write_pose_campaign(day_a, root / "a")
     stiffness.write_pose_campaign(day_b, root / "b")
     return root / "a", root / "b"

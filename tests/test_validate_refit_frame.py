@@ -15,12 +15,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from pose_campaigns import TWO_DAYS_SHIFT, TWO_DAYS_TURN, ur10_markers, ur10_two_days
 
 import stiffness
 from stiffness.calibration.pose_fit import fit_pose_model, rows_of, starting_frame
-from stiffness.calibration.pose_model import Marker, PoseModel
+from stiffness.calibration.pose_model import PoseModel
 from stiffness.calibration.pose_model_file import write_pose_model
 from stiffness.cli.main import main
 from stiffness.errors import StiffnessError
@@ -29,10 +29,8 @@ from stiffness.robot.robot import load_robot
 
 NOISE = 20e-6  # m
 FAMILIES = ["frame", "markers", "joint_offsets"]
-MARKERS = [Marker("tip", "tool0", np.array([0.0, 0.03, 0.05])),
-           Marker("elbow", "forearm_link", np.array([0.0, 0.05, 0.2]))]
-TURN = np.radians(4.0) * np.array([0.6, 0.0, 0.8])  # rad, the tracker turned between days
-SHIFT = np.array([0.03, -0.01, 0.005])  # m
+MARKERS = ur10_markers()
+TURN, SHIFT = TWO_DAYS_TURN, TWO_DAYS_SHIFT  # rad, m: the tracker's motion between the days
 
 
 @pytest.fixture(scope="module")
@@ -40,19 +38,8 @@ def days(tmp_path_factory):
     """The model file of day A (30 poses) and the campaign of day B (15 poses): the same
     hidden marker offsets and zero offsets, the measuring frame moved."""
     root = tmp_path_factory.mktemp("refit")
-    robot = load_robot("ur10", frame="tool0")
-    rng = np.random.default_rng(5)
-    rotation, translation = pin.exp3(rng.normal(size=3)), rng.uniform(-2, 2, 3)
-    offsets = np.array([m.offset for m in MARKERS]) + rng.normal(0, 2e-3, (2, 3))
-    zeros = rng.normal(0.0, 1e-3, 6)
-    day_a = simulate_pose_campaign(
-        robot, MARKERS, HiddenPoseErrors(rotation, translation, offsets, zeros,
-                                         np.zeros((6, 6))), 30, NOISE, seed=5)
-    motion = pin.exp3(TURN)
-    day_b = simulate_pose_campaign(
-        robot, MARKERS, HiddenPoseErrors(motion @ rotation, motion @ translation + SHIFT,
-                                         offsets, zeros, np.zeros((6, 6))), 15, NOISE, seed=6)
-    model = PoseModel(robot, day_a.markers, tuple(FAMILIES), starting_frame(day_a),
+    day_a, day_b = ur10_two_days(NOISE)
+    model = PoseModel(day_a.robot, day_a.markers, tuple(FAMILIES), starting_frame(day_a),
                       day_a.loads)
     fit = fit_pose_model(model, day_a, rows_of(model, day_a), FAMILIES)
     stiffness.write_pose_campaign(day_b, root / "b")
