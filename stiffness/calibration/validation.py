@@ -410,7 +410,8 @@ def validate(model: ModelFile | str | os.PathLike,
     families, on the calibrated robot), as a :class:`ModelFile` of it given here is
     (refused as another kind of campaign until 6 December 2026, given by its path); it carries
     no parameter covariance, so its verdict is the noise-only test's. A pose model's
-    measuring frame is registered anew on the campaign in every case (:attr:`Validation.frame`);
+    measuring frame is registered anew on the campaign in every case, but a model fitted
+    without one (:attr:`Validation.frame`);
     with ``refit`` (``("frame",)``: a campaign of another day, the tracker moved; with
     ``"markers"`` too, a marker plate mounted again) those families are fitted to the campaign
     and the errors and the verdict are after it (their parameters counted), else with the
