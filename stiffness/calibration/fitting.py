@@ -76,8 +76,8 @@ PRIOR_WEIGHT = 1e-6
 PENALTY = 1e6
 #: |x| beyond this (k ~ 1e100 for ln k) is a failed evaluation.
 _MAX_X = 230.0
-#: Points at which an :class:`Objective` keeps the model's prediction and Jacobian, the last
-#: computed first out: the solver's last points, a fit's start and representative point
+#: Points at which an :class:`Objective` keeps the model's prediction and Jacobian, the least
+#: recently used dropped first: the solver's last points, a fit's start and representative point
 #: (:func:`stiffness.calibration.solver.fit` judges identifiability there), its optimum.
 _RECENT = 4
 #: Relative step of the central differences of the parameters without analytic derivatives.
