@@ -129,7 +129,7 @@ def pose_command_line(args: argparse.Namespace) -> str:
     words = ["stiffness", "diagnose", str(args.campaign), "--out", str(args.out),
              "--seed", str(args.seed), "--masses", args.masses]
     words += ["--validate", str(args.validate)] if args.validate else []
-    words += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
+    words += flags.refit_flag_words(args)
     words += ["--loss", args.loss] if args.loss != "linear" else []
     words += ["--max-steps", str(args.max_steps)] if args.max_steps is not None else []
     words += ["--families", args.families] if args.families else []

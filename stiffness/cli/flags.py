@@ -403,6 +403,13 @@ def refit_from_args(args: argparse.Namespace) -> tuple[str, ...]:
             else ("frame",) if args.refit_frame else ())
 
 
+def refit_flag_words(args: argparse.Namespace) -> list[str]:
+    """The one flag of :func:`add_refit_flags` that says what was given
+    (``--refit-markers`` implies ``--refit-frame``), as a command line repeats it; ``[]``:
+    neither."""
+    return [f"--refit-{f}" for f in refit_from_args(args)[-1:]]
+
+
 def add_strict_flag(parser: argparse.ArgumentParser) -> None:
     """``--strict``: refuse campaign CSV columns no reader knows (else ignored with a
     warning; :class:`stiffness.errors.UnknownColumnWarning`)."""

@@ -177,7 +177,7 @@ def run_campaign(args: argparse.Namespace) -> int:
     for flag in _CAMPAIGN_FLAGS:
         value = getattr(args, flag)
         words += [] if value is None else [f"--{flag}", str(value)]
-    words += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
+    words += flags.refit_flag_words(args)
     words += ["--quiet"] if args.quiet else []
     parser = argparse.ArgumentParser(prog="stiffness diagnose")
     diagnose.configure_parser(parser)
@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     if args.user_campaign:
         return run_campaign(args)
     given = [f"--{flag}" for flag in _CAMPAIGN_FLAGS if getattr(args, flag) is not None]
-    given += [f"--refit-{f}" for f in flags.refit_from_args(args)[-1:]]
+    given += flags.refit_flag_words(args)
     if given:
         raise StiffnessError(f"{', '.join(given)} take(s) a campaign: stiffness report "
                              "CAMPAIGN --out DIR (the SK120 report has no such option)")
