@@ -33,6 +33,18 @@ def arm_urdf(extra: str = "", mass: float = 2.0, links: str = "") -> str:
     return "\n".join(parts)
 
 
+def rail_urdf(tmp_path: Path, lower: str, upper: str) -> Path:
+    """:func:`arm_urdf` on a prismatic rail along x (``rail_joint``, limits ``lower`` ..
+    ``upper`` m as written in the file), written to ``tmp_path``; its path."""
+    rail = ('<link name="rail"/><joint name="rail_joint" type="prismatic"><parent link="rail"/>'
+            f'<child link="base_link"/><axis xyz="1 0 0"/><limit lower="{lower}" '
+            f'upper="{upper}" effort="100" velocity="1"/></joint>')
+    path = tmp_path / "rail.urdf"
+    path.write_text(arm_urdf().replace('<link name="base_link"/>',
+                                       '<link name="base_link"/>' + rail))
+    return path
+
+
 def _position(robot, coords: np.ndarray) -> np.ndarray:
     q = robot.configuration(coords)
     pin.framesForwardKinematics(robot.model, robot.data, q)
@@ -202,12 +214,7 @@ def test_a_rail_with_placeholder_limits_is_sampled_near_its_reference(tmp_path: 
     0.1 m, as an unbounded prismatic joint is, and the campaign is written."""
     from stiffness.cli.main import main
 
-    rail = ('<link name="rail"/><joint name="rail_joint" type="prismatic"><parent link="rail"/>'
-            '<child link="base_link"/><axis xyz="1 0 0"/><limit lower="-999999" '
-            'upper="999999" effort="100" velocity="1"/></joint>')
-    path = tmp_path / "rail.urdf"
-    path.write_text(arm_urdf().replace('<link name="base_link"/>',
-                                       '<link name="base_link"/>' + rail))
+    path = rail_urdf(tmp_path, "-999999", "999999")
     out = tmp_path / "campaign"
     assert main(["simulate", "--robot", str(path), "--kq", "1e5,1e4,1e4,1e4,1e4",
                  "--configs", "4", "--out", str(out), "--quiet"]) == 0
@@ -228,12 +235,7 @@ def test_backlash_on_a_prismatic_joint_is_said_in_the_length_unit(tmp_path: Path
 
     from stiffness.cli.main import main
 
-    rail = ('<link name="rail"/><joint name="rail_joint" type="prismatic"><parent link="rail"/>'
-            '<child link="base_link"/><axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" '
-            'effort="100" velocity="1"/></joint>')
-    path = tmp_path / "rail.urdf"
-    path.write_text(arm_urdf().replace('<link name="base_link"/>',
-                                       '<link name="base_link"/>' + rail))
+    path = rail_urdf(tmp_path, "-0.5", "0.5")
     out = tmp_path / "campaign"
     assert main(["simulate", "--robot", str(path), "--kq", "1e8,1e8,1e8,1e8,1e8",
                  "--effect", "backlash:rail_joint=0.5", "--load-pattern", "axes",
