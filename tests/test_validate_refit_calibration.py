@@ -97,8 +97,14 @@ def test_a_right_model_is_rejected_at_the_level(honest, refit):
     assert all(r["verdict_test"] == "noise and the model's parameter uncertainty"
                for r in results)
     assert {r["dof"] for r in results} == {24 - (9 if "markers" in refit else 6)}
+    _assert_calibrated(results)
+
+
+def _assert_calibrated(results: list[dict]) -> None:
+    """The verdicts of a right model's seeds reject at :data:`LEVEL`: the count within its
+    binomial 99 % interval, and the p-values uniform (KS p above 0.01)."""
     rejected = sum(r["verdict"] == "above the noise" for r in results)
-    low, high = stats.binom.interval(0.99, SEEDS, LEVEL)
+    low, high = stats.binom.interval(0.99, len(results), LEVEL)
     assert low <= rejected <= high, rejected
     p = np.array([r["gof_p_with_parameters"] for r in results])
     assert stats.kstest(p, "uniform").pvalue > 0.01
@@ -147,11 +153,7 @@ def test_oriented_markers_are_in_the_registration(robot, tmp_path):
         model, day_b = _days(robot, 2 * SEEDS + seed, tmp_path, turns=TURN_NOISE)
         results.append(stiffness.validate(model, day_b, refit=("frame",)).to_dict())
     assert {r["dof"] for r in results} == {8 * 6 - 6}
-    rejected = sum(r["verdict"] == "above the noise" for r in results)
-    low, high = stats.binom.interval(0.99, ORIENTED_SEEDS, LEVEL)
-    assert low <= rejected <= high, rejected
-    p = np.array([r["gof_p_with_parameters"] for r in results])
-    assert stats.kstest(p, "uniform").pvalue > 0.01
+    _assert_calibrated(results)
 
 
 def test_an_orientation_seen_without_its_position_is_in_the_registration(robot, tmp_path):
