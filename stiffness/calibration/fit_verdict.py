@@ -12,6 +12,7 @@ from stiffness.calibration.selection import (
     BIC_MARGIN,
     GOF_LEVEL,
     OVERSTATED_P,
+    UNPHYSICAL,
     excluded_note,
     noise_overstated,
 )
@@ -110,7 +111,7 @@ def _missing(d: dict) -> str:
            f"(dBIC {best['delta_bic']:+.3g}" if best.get("rms") is not None else
            f"{name} (dBIC {best['delta_bic']:+.3g} on a first-order screen, not fitted")
     forced = f"'{name}'" if "(" in name else name
-    if str(best.get("not_judged") or "").startswith("unphysical"):  # more data: the same values
+    if str(best.get("not_judged") or "").startswith(UNPHYSICAL):  # more data: the same values
         return (f"{head}, or the model's joints are not the robot's: the best rejected "
                 f"candidate, {did}{_why_rejected(best, unit)}), fits values no robot is off by, "
                 "and more configurations would not make them physical; check each joint's "

@@ -66,6 +66,7 @@ import numpy as np
 
 from stiffness.calibration.pose_campaign import PoseCampaign
 from stiffness.calibration.pose_fit import PoseFit
+from stiffness.calibration.selection import UNPHYSICAL
 from stiffness.calibration.unit_checks import (
     SPREAD_RATIO,
     likely_length_unit,
@@ -391,7 +392,7 @@ def unphysical_values(fit: PoseFit, forced: Collection[str] = ()) -> str | None:
         [f"moves {_shifted_text(shifted)}"] if shifted else [])
     if not parts:
         return None
-    return (f"unphysical: its fit {'; and '.join(parts)}, and a named family's values are "
+    return (f"{UNPHYSICAL}: its fit {'; and '.join(parts)}, and a named family's values are "
             "physical ones (docs/absolute-poses.md, Implausible angles and placements)")
 
 

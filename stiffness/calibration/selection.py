@@ -36,6 +36,9 @@ GOF_LEVEL = 0.95
 BIC_MARGIN = 2.0
 #: Number of best-BIC candidates (effects, pose families) cross-validated per step.
 CV_TOP = 3
+#: The word that opens the reason a search refuses a fit whose values no robot has
+#: (:meth:`~stiffness.calibration.search.SearchKind.unphysical`), read back by the verdict.
+UNPHYSICAL = "unphysical"
 #: Solver tolerance of the first fit of every candidate: a step stops once it lowers the cost
 #: by less than this fraction, a change of about ``1e-6 N`` in ``RSS / sigma^2``, far inside
 #: :data:`BIC_MARGIN` (an extension that trades a joint's compliance against an equivalent
