@@ -21,7 +21,6 @@ configuration (the same assembly branch).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import io
 import os
 import sys
@@ -53,6 +52,7 @@ if os.environ.get("PYTHONDONTWRITEBYTECODE") and "PYTHONPYCACHEPREFIX" not in os
 import numpy as np  # noqa: E402
 import pytest
 from hypothesis import HealthCheck, settings
+from shared_run import run_folder
 
 from stiffness.mechanics.formulation import target_state
 from stiffness.robot.robot import Robot, load_robot
@@ -398,12 +398,8 @@ def sk120_report_run(tmp_path_factory, worker_id) -> tuple[Path, str]:
     the first to need it writes it under a file lock, the others wait and read)."""
     from stiffness.cli.main import main
 
-    root = tmp_path_factory.getbasetemp()
-    if worker_id != "master":
-        root = root.parent  # the folder of this run, above each worker's own
-    out, printed = root / "sk120-report", root / "sk120-report.stdout"
-    with open(root / "sk120-report.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with run_folder(tmp_path_factory, worker_id, "sk120-report") as root:
+        out, printed = root / "sk120-report", root / "sk120-report.stdout"
         if not printed.exists():
             said = io.StringIO()
             with contextlib.redirect_stdout(said):
@@ -427,12 +423,8 @@ def ur5_rigid_wrist_model(tmp_path_factory, worker_id) -> Path:
     test_confounded_springs, which only read it."""
     import stiffness
 
-    root = tmp_path_factory.getbasetemp()
-    if worker_id != "master":
-        root = root.parent  # the folder of this run, above each worker's own
-    folder = root / "ur5-rigid-wrist"
-    with open(root / "ur5-rigid-wrist.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with run_folder(tmp_path_factory, worker_id, "ur5-rigid-wrist") as root:
+        folder = root / "ur5-rigid-wrist"
         if not (folder / "m.json").exists():
             joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
                       "wrist_1_joint"]

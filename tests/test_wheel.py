@@ -11,7 +11,6 @@ the outputs are the only difference allowed.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shutil
@@ -21,6 +20,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from shared_run import run_folder
 
 import stiffness
 from stiffness.cli.main import main
@@ -90,12 +90,8 @@ def _installed(folder: Path) -> dict:
 def wheel_run(tmp_path_factory, worker_id) -> Path:
     """The folder of :func:`_build_and_run`, made once per test run: the test workers share
     it (the first to need it builds it under a file lock, the others wait and read)."""
-    root = tmp_path_factory.getbasetemp()
-    if worker_id != "master":
-        root = root.parent  # the folder of this run, above each worker's own
-    folder = root / "wheel-run"
-    with open(root / "wheel-run.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with run_folder(tmp_path_factory, worker_id, "wheel-run") as root:
+        folder = root / "wheel-run"
         if not (folder / "done").exists():
             shutil.rmtree(folder, ignore_errors=True)  # a worker that failed half-way
             _build_and_run(folder)
